@@ -1,0 +1,34 @@
+"""The interface every simulator backend implements."""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Backend:
+    """N vehicles with RotorPy's state layout, advanced by one fixed step ``dt``.
+
+    State arrays (float64, owned by the backend, writable by the task on reset):
+      x (N,3) world position, v (N,3) world velocity, q (N,4) attitude quaternion scalar-last
+      (i, j, k, w) body-to-world, w (N,3) body rates, rotor_speeds (N,4) rad/s.
+    """
+
+    def __init__(self, n: int, params: dict, dt: float) -> None:
+        self.n = int(n)
+        self.params = params
+        self.dt = float(dt)
+        self.x = np.zeros((n, 3))
+        self.v = np.zeros((n, 3))
+        self.q = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n, 1))
+        self.w = np.zeros((n, 3))
+        self.rotor_speeds = np.zeros((n, params["num_rotors"]))
+
+    def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
+        """Advance all vehicles by ``dt`` under constant commanded rotor speeds (N,4) and wind (N,3)."""
+        raise NotImplementedError
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k).copy() for k in ("x", "v", "q", "w", "rotor_speeds")}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        for k in ("x", "v", "q", "w", "rotor_speeds"):
+            getattr(self, k)[...] = state[k]
