@@ -109,9 +109,6 @@ class HoverVecEnv(VecEnv):
 
     # ---- VecEnv API ---------------------------------------------------------------------------
     def reset(self) -> np.ndarray:
-        if self._seeds[0] is not None:
-            self._rng = np.random.default_rng(self._seeds[0])
-        self._reset_seeds()
         self._reset_envs(np.arange(self.num_envs))
         return self._obs()
 

@@ -1,0 +1,143 @@
+"""Validation of a composed config, in one place, before anything is trained or tracked.
+
+Each rule names a key, what is allowed, and a check. ``validate(cfg)`` raises ``ConfigError`` with a
+one-line message for the first broken rule: ``train.total_timesteps=-5: must be an integer > 0``.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+from omegaconf import DictConfig, OmegaConf
+
+
+class ConfigError(ValueError):
+    """An invalid configuration value (message: key=value: what is allowed)."""
+
+
+_MISSING = object()
+
+
+def _get(cfg: DictConfig, key: str) -> Any:
+    value = OmegaConf.select(cfg, key, default=_MISSING)
+    return OmegaConf.to_object(value) if OmegaConf.is_config(value) else value
+
+
+def _backend_names() -> list[str]:
+    from sweep.envs.backends import BACKENDS
+
+    return list(BACKENDS)
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def positive_int(v: Any) -> bool:
+    return _is_int(v) and v > 0
+
+
+def positive(v: Any) -> bool:
+    return _is_num(v) and v > 0
+
+
+def non_negative(v: Any) -> bool:
+    return _is_num(v) and v >= 0
+
+
+def unit_interval(v: Any) -> bool:
+    return _is_num(v) and 0 <= v <= 1
+
+
+def speeds_list(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and all(non_negative(s) for s in v)
+
+
+def vector3(v: Any) -> bool:
+    return isinstance(v, list) and len(v) == 3 and all(_is_num(s) for s in v) and any(s != 0 for s in v)
+
+
+def one_of(*allowed: str) -> Callable[[Any], bool]:
+    return lambda v: v in allowed
+
+
+# (key, check, what is allowed). Keys absent from the config (e.g. agent.recom for ppo) are skipped.
+RULES: list[tuple[str, Callable[[Any], bool], str]] = [
+    ("seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    ("train.total_timesteps", positive_int, "an integer > 0"),
+    ("train.progress_every_s", positive, "a number > 0"),
+    ("train.torch_threads", positive_int, "an integer > 0"),
+    ("env.backend", lambda v: v in _backend_names(), "one of " + "|".join(sorted(_backend_names()))),
+    ("env.n_envs", positive_int, "an integer > 0"),
+    ("env.sim_rate", positive, "a number > 0 (Hz)"),
+    ("env.episode_seconds", positive, "a number > 0 (s)"),
+    ("env.start_bound", non_negative, "a number >= 0 (m)"),
+    ("env.world_bound", positive, "a number > 0 (m)"),
+    ("env.motor_time_constant", positive, "a number > 0 (s)"),
+    ("env.observation", one_of("quaternion", "euler"), "quaternion|euler"),
+    ("env.reward.w_p", non_negative, "a number >= 0"),
+    ("env.reward.w_v", non_negative, "a number >= 0"),
+    ("env.reward.w_a", non_negative, "a number >= 0"),
+    ("wind.speeds", speeds_list, "a non-empty list of speeds >= 0 (m/s)"),
+    ("wind.segment_steps", positive_int, "an integer > 0"),
+    ("wind.direction", vector3, "a non-zero 3-vector [x, y, z]"),
+    ("agent.ppo.learning_rate", positive, "a number > 0"),
+    ("agent.ppo.n_steps", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
+    ("agent.ppo.batch_size", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
+    ("agent.ppo.n_epochs", positive_int, "an integer > 0"),
+    ("agent.ppo.gamma", unit_interval, "a number in [0, 1]"),
+    ("agent.ppo.gae_lambda", unit_interval, "a number in [0, 1]"),
+    ("agent.ppo.clip_range", positive, "a number > 0"),
+    ("agent.ppo.ent_coef", non_negative, "a number >= 0"),
+    ("agent.ppo.vf_coef", non_negative, "a number >= 0"),
+    ("agent.ppo.max_grad_norm", positive, "a number > 0"),
+    ("agent.policy.net_arch", lambda v: isinstance(v, list) and len(v) > 0 and all(positive_int(h) for h in v),
+     "a non-empty list of layer widths > 0"),
+    ("agent.policy.activation", one_of("tanh", "relu"), "tanh|relu"),
+    ("agent.policy.adam_eps", positive, "a number > 0"),
+    ("agent.l2.coef", non_negative, "a number >= 0"),
+    ("agent.l2.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
+    ("agent.l2.params", lambda v: isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"},
+     "a non-empty subset of [policy, value, log_std]"),
+    ("agent.recom.interval", positive_int, "an integer > 0 (timesteps)"),
+    ("agent.recom.window", positive_int, "an integer > 0 (episodes)"),
+    ("agent.recom.gain", non_negative, "a number >= 0"),
+    ("agent.recom.lr_min", positive, "a number > 0"),
+    ("agent.recom.lr_max", positive, "a number > 0"),
+    ("agent.recom.previous", one_of("last_update", "shifted"), "last_update|shifted"),
+    ("plasticity.every_rollouts", positive_int, "an integer > 0"),
+    ("plasticity.tau", unit_interval, "a number in [0, 1]"),
+    ("plasticity.batch_size", positive_int, "an integer > 0"),
+    ("plasticity.saturation", unit_interval, "a number in [0, 1]"),
+    ("plasticity.srank_delta", unit_interval, "a number in [0, 1]"),
+    ("eval.episodes", positive_int, "an integer >= 1"),
+    ("eval.wind_speed", non_negative, "a number >= 0 (m/s)"),
+    ("eval.direction", vector3, "a non-zero 3-vector [x, y, z]"),
+    ("eval.seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    ("eval.success_radius", positive, "a number > 0 (m)"),
+    ("eval.success_hold_s", non_negative, "a number >= 0 (s)"),
+    ("tracking.experiment", lambda v: isinstance(v, str) and v.strip() != "", "a non-empty string"),
+]
+
+
+
+
+def validate(cfg: DictConfig) -> None:
+    """Raise ConfigError naming the first invalid key, its value and what is allowed."""
+    for key, check, allowed in RULES:
+        value = _get(cfg, key)
+        if value is _MISSING:
+            continue
+        if not check(value):
+            raise ConfigError(f"{key}={value!r}: must be {allowed}")
+    lr_min, lr_max = _get(cfg, "agent.recom.lr_min"), _get(cfg, "agent.recom.lr_max")
+    if lr_min is not _MISSING and lr_max is not _MISSING and lr_min > lr_max:
+        raise ConfigError(f"agent.recom.lr_min={lr_min!r} > agent.recom.lr_max={lr_max!r}: must be lr_min <= lr_max")
+    rollout = _get(cfg, "agent.ppo.n_steps") * _get(cfg, "env.n_envs")
+    if _get(cfg, "agent.ppo.batch_size") > rollout:
+        raise ConfigError(f"agent.ppo.batch_size={_get(cfg, 'agent.ppo.batch_size')!r}: must be <= the rollout size "
+                          f"agent.ppo.n_steps x env.n_envs = {rollout}")

@@ -1,0 +1,41 @@
+"""Per-job status files (``<job dir>/status.json``) and the end-of-sweep summary."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def write_status(job_dir: Path, status: str, **fields) -> None:
+    job_dir.mkdir(parents=True, exist_ok=True)
+    tmp = job_dir / "status.json.tmp"
+    tmp.write_text(json.dumps({"status": status, **fields}, indent=2))
+    tmp.replace(job_dir / "status.json")
+
+
+def read_status(job_dir: Path) -> dict | None:
+    path = job_dir / "status.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def ui_command(uri: str) -> str:
+    from sweep.tracking import PROJECT_ROOT
+
+    if uri == f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}":
+        return f"cd {PROJECT_ROOT} && mlflow ui"
+    return f"mlflow ui --backend-store-uri {uri}"
+
+
+def report_sweep(sweep_dir: Path, uri: str) -> None:
+    """Print one line per failed job and where results are; exit 1 if any job did not finish."""
+    jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir() and (p / ".hydra").exists()),
+                  key=lambda p: (len(p.name), p.name)) if sweep_dir.exists() else []
+    statuses = [(job, read_status(job) or {"status": "UNKNOWN", "reason": "no status.json (job died?)"}) for job in jobs]
+    bad = [(job, s) for job, s in statuses if s["status"] != "FINISHED"]
+    print(f"sweep: {len(statuses) - len(bad)}/{len(statuses)} jobs finished; outputs in {sweep_dir}")
+    print(f"sweep: MLflow store {uri}; open it with: {ui_command(uri)}")
+    for job, s in bad:
+        print(f"sweep: job {job.name} {s['status']} ({' '.join(s.get('overrides', []))}): {s.get('reason', '')}",
+              file=sys.stderr)
+    if bad:
+        sys.exit(1)

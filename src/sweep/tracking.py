@@ -1,0 +1,150 @@
+"""MLflow: the store, one run per job, and SB3's logger bridged into it. The only module that writes MLflow.
+
+* Store: ``tracking.uri`` if set, else ``$MLFLOW_TRACKING_URI``, else ``sqlite:///<project root>/mlflow.db``
+  (absolute), which a bare ``mlflow ui`` started in the project root opens.
+* The store's schema is created once in the parent process (``SweepCallback``, a Hydra callback that
+  runs before the launcher starts jobs): several processes creating a fresh SQLite store race.
+* ``MlflowWriter`` is an SB3 ``KVWriter``: every logger dump becomes one ``log_batch`` with
+  step = environment timesteps and SB3's own metric names (``rollout/ep_rew_mean``, ``train/loss``, ...).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+from stable_baselines3.common.logger import KVWriter
+
+os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
+os.environ.setdefault("MLFLOW_ENABLE_ASYNC_TRACE_LOGGING", "false")
+import mlflow  # noqa: E402
+from mlflow.entities import Metric, Param, RunTag  # noqa: E402
+from mlflow.tracking import MlflowClient  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+BATCH_LIMIT = 1000  # MLflow accepts at most 1000 metrics / 100 params per log_batch
+
+
+def tracking_uri(uri: str | None = None) -> str:
+    """The store every job of a sweep writes to (always absolute for SQLite)."""
+    uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
+    if uri.startswith("sqlite:///") and not uri.startswith("sqlite:////"):
+        path = Path(uri[len("sqlite:///"):])
+        if not path.is_absolute():
+            uri = f"sqlite:///{path.resolve()}"
+    return uri
+
+
+def ensure_store(uri: str, experiment: str) -> str:
+    """Create the store's schema and the experiment if missing; return the experiment id."""
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.get_experiment_by_name(experiment)
+    if exp is not None:
+        return exp.experiment_id
+    try:
+        return client.create_experiment(experiment)
+    except mlflow.exceptions.MlflowException:  # created concurrently by another process
+        return client.get_experiment_by_name(experiment).experiment_id
+
+
+def flatten(cfg: Any, prefix: str = "") -> dict[str, str]:
+    """Flattened ``{"a.b.c": "value"}`` of a resolved config, lists as their JSON text."""
+    out: dict[str, str] = {}
+    if isinstance(cfg, dict):
+        for k, v in cfg.items():
+            out.update(flatten(v, f"{prefix}{k}."))
+    else:
+        out[prefix[:-1]] = json.dumps(cfg) if isinstance(cfg, (list, tuple)) else str(cfg)
+    return out
+
+
+class TrackedRun:
+    """One MLflow run per job. Use as a context manager: an exception ends the run FAILED."""
+
+    def __init__(self, cfg: DictConfig, tags: dict[str, str], run_id: str | None = None) -> None:
+        self.uri = tracking_uri(cfg.tracking.uri)
+        self.client = MlflowClient(tracking_uri=self.uri)
+        self.experiment_id = ensure_store(self.uri, cfg.tracking.experiment)
+        if run_id is None:
+            run = self.client.create_run(self.experiment_id, tags=tags, run_name=tags.get("run_name"))
+            self.run_id = run.info.run_id
+            params = flatten(OmegaConf.to_container(cfg, resolve=True))
+            items = [Param(k, v[:6000]) for k, v in params.items()]
+            for i in range(0, len(items), 100):
+                self.client.log_batch(self.run_id, params=items[i:i + 100])
+        else:
+            self.run_id = run_id
+            self.client.update_run(run_id, status="RUNNING")
+
+    def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        ts = int(time.time() * 1000)
+        items = [Metric(k, float(v), ts, int(step)) for k, v in metrics.items()
+                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))]
+        for i in range(0, len(items), BATCH_LIMIT):
+            self.client.log_batch(self.run_id, metrics=items[i:i + BATCH_LIMIT])
+
+    def set_tags(self, tags: dict[str, str]) -> None:
+        self.client.log_batch(self.run_id, tags=[RunTag(k, str(v)[:5000]) for k, v in tags.items()])
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        self.client.log_artifact(self.run_id, str(path), artifact_path)
+
+    def finish(self, status: str = "FINISHED") -> None:
+        self.client.set_terminated(self.run_id, status=status)
+
+    def __enter__(self) -> "TrackedRun":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            self.finish("FINISHED")
+        else:
+            reason = f"{exc_type.__name__}: {exc}"
+            try:
+                self.set_tags({"failure_reason": reason})
+            finally:
+                self.finish("KILLED" if exc_type is KeyboardInterrupt else "FAILED")
+        return False
+
+
+class MlflowWriter(KVWriter):
+    """SB3 logger output: one MLflow ``log_batch`` per logger dump, step = environment timesteps."""
+
+    def __init__(self, run: TrackedRun) -> None:
+        self.run = run
+
+    def write(self, key_values: dict[str, Any], key_excluded: dict[str, Any], step: int = 0) -> None:
+        metrics = {k: v for k, v in key_values.items()
+                   if not (key_excluded.get(k) and "mlflow" in key_excluded[k])}
+        metrics.pop("time/iterations", None)
+        self.run.log_metrics(metrics, step)
+
+    def close(self) -> None:
+        pass
+
+
+class SweepCallback(Callback):
+    """Hydra callback (parent process): create the store before jobs start; say where results are."""
+
+    def _prepare(self, config: DictConfig) -> None:
+        uri = tracking_uri(config.tracking.uri)
+        ensure_store(uri, config.tracking.experiment)
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._prepare(config)
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._prepare(config)
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from sweep.status import report_sweep
+
+        report_sweep(Path(config.hydra.sweep.dir), tracking_uri(config.tracking.uri))
