@@ -1,7 +1,7 @@
 """SB3 PPO from ``cfg.agent`` (paper Sec. III-E: SB3 defaults, 64x64 tanh, Adam, batch 64).
 
-Remedies (L2, RECOM, later ones) are SB3 callbacks built from any ``agent.<name>`` entry that has a
-``_target_``; this module does not know which exist.
+Remedies (L2, RECOM, later ones) are SB3 callbacks built from every ``agent.<name>`` entry that has a
+``_target_`` and ``enabled: true`` (settings in conf/remedy/); this module does not know which exist.
 """
 from __future__ import annotations
 
@@ -31,5 +31,10 @@ def build_ppo(agent: DictConfig, env: VecEnv, seed: int) -> PPO:
 
 
 def build_remedies(agent: DictConfig) -> list[BaseCallback]:
-    """Instantiate every ``agent.<key>`` that has a ``_target_`` (in config order)."""
-    return [instantiate(v) for v in agent.values() if isinstance(v, DictConfig) and "_target_" in v]
+    """Instantiate every enabled ``agent.<key>`` that has a ``_target_`` (in config order)."""
+    remedies = []
+    for spec in agent.values():
+        if isinstance(spec, DictConfig) and "_target_" in spec and spec.get("enabled", True):
+            kwargs = {k: v for k, v in spec.items() if k != "enabled"}
+            remedies.append(instantiate(OmegaConf.create(kwargs)))
+    return remedies

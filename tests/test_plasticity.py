@@ -1,0 +1,181 @@
+"""Dormant units, RECOM's update, the LR reaching the optimizer, and L2 differing only in the L2 term."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from conftest import compose_cfg
+from sweep.agents import build_ppo, build_remedies
+from sweep.envs import HoverVecEnv, WindSchedule
+from sweep.plasticity.dormant import dormant_ratio, dormant_scores, hidden_activations, srank
+from sweep.plasticity.l2 import L2Regularization
+from sweep.plasticity.recom import Recom, recom_lr, retrospective_cost
+
+# ---- dormant units (Sokar et al. 2023) ----------------------------------------------------------------
+
+
+def hand_built_net() -> nn.Sequential:
+    """4 inputs -> 4 tanh units: unit 0 has zero weights and bias (dormant), unit 3 is scaled up."""
+    lin = nn.Linear(4, 4)
+    with torch.no_grad():
+        lin.weight.copy_(torch.tensor([[0.0, 0, 0, 0], [0.1, 0, 0, 0], [0, 0.1, 0, 0], [0, 0, 1.0, 0]]))
+        lin.bias.zero_()
+    return nn.Sequential(lin, nn.Tanh())
+
+
+def test_dormant_ratio_on_hand_built_network():
+    x = torch.tensor([[1.0, 1.0, 1.0, 0.0], [-1.0, -1.0, -1.0, 0.0]])
+    (h,) = hidden_activations(hand_built_net(), x)
+    # |h| means: 0, tanh(.1), tanh(.1), tanh(1); scores relative to their average
+    m = torch.tensor([0.0, np.tanh(0.1), np.tanh(0.1), np.tanh(1.0)], dtype=torch.float32)
+    torch.testing.assert_close(dormant_scores(h), m / m.mean())
+    overall, per_layer = dormant_ratio([h], tau=0.025)
+    assert overall == 0.25 and per_layer == [0.25]  # only the zero unit
+    overall, _ = dormant_ratio([h], tau=0.5)        # tanh(.1)/mean = 0.33 <= 0.5: two more
+    assert overall == 0.75
+
+
+def test_scaled_up_unit_is_not_dormant_and_all_zero_layer_is_dormant():
+    h = torch.tensor([[0.0, 10.0], [0.0, -10.0]])
+    assert dormant_ratio([h], 0.025)[0] == 0.5
+    assert dormant_ratio([torch.zeros(5, 3)], 0.025)[0] == 1.0
+    assert dormant_ratio([h, torch.ones(2, 2)], 0.025) == (0.25, [0.5, 0.0])
+
+
+def test_fresh_policy_has_no_dormant_units():
+    env = HoverVecEnv(n_envs=1, seed=0)
+    model = build_ppo(compose_cfg().agent, env, seed=0)
+    obs = torch.as_tensor(np.stack([env.reset()[0] for _ in range(256)]) + np.random.default_rng(0).normal(size=(256, 13)),
+                          dtype=torch.float32)
+    layers = hidden_activations(model.policy.mlp_extractor.policy_net, obs)
+    assert len(layers) == 2 and dormant_ratio(layers, 0.025)[0] == 0.0
+
+
+def test_srank():
+    assert srank(torch.eye(8)) == 8
+    assert srank(torch.ones(10, 4)) == 1
+    features = torch.diag(torch.tensor([1.0, 1.0, 1e-6, 1e-6]))
+    assert srank(features, delta=0.01) == 2
+
+
+# ---- RECOM (Eqs. 5-8) -----------------------------------------------------------------------------
+
+
+def test_recom_equations_by_hand():
+    assert retrospective_cost([-10.0, -20.0], [1.0, 3.0]) == pytest.approx((11 + 23) / 2)
+    lr, g = recom_lr(3e-4, cost=110.0, cost_prev=100.0, gain=5e-6, lr_min=1e-5, lr_max=1e-3)
+    assert g == 10.0 and lr == pytest.approx(3e-4 - 5e-5)
+    assert recom_lr(3e-4, 200.0, 100.0, 5e-6, 1e-5, 1e-3)[0] == 1e-5    # clipped below
+    assert recom_lr(3e-4, 0.0, 1000.0, 5e-6, 1e-5, 1e-3)[0] == 1e-3     # clipped above
+
+
+class FakeLogger:
+    def __init__(self):
+        self.name_to_value = {}
+
+    def record(self, key, value):
+        self.name_to_value[key] = value
+
+
+def drive_recom(recom: Recom, rollouts: list[tuple[float, list[float]]]) -> list[float]:
+    """Feed (loss of the update before the rollout, episode returns of the rollout) sequences."""
+    recom.schedule = None
+    recom.model = type("M", (), {})()
+    recom.model.lr_schedule = lambda _: 3e-4
+    recom.model.vf_coef, recom.model.ent_coef = 0.5, 0.0
+    recom.model.logger = FakeLogger()
+    recom._init_callback()
+    lrs, recom.num_timesteps = [], 0
+    for loss, returns in rollouts:
+        if loss is not None:  # SB3 logged the parts of the last update
+            recom.model.logger.name_to_value = {"train/policy_gradient_loss": loss, "train/value_loss": 0.0,
+                                          "train/entropy_loss": 0.0}
+        recom._on_rollout_start()
+        for r in returns:
+            recom.locals = {"infos": [{"episode": {"r": r}}]}
+            recom._on_step()
+        recom.num_timesteps += 100
+        recom._on_rollout_end()
+        lrs.append(recom.schedule.value)
+    return lrs
+
+
+def test_recom_callback_on_synthetic_sequence():
+    recom = Recom(interval=200, window=2, gain=1e-6, lr_min=1e-5, lr_max=1e-3, previous="last_update")
+    # rollout 1 has no update before it: its episodes are not used.
+    lrs = drive_recom(recom, [(None, [-50.0]), (2.0, [-10.0, -20.0]), (4.0, [-30.0]), (1.0, [-40.0, -60.0])])
+    # update at t=200: episodes (-10,2), (-20,2): C = (12 + 22)/2 = 17, first update: LR unchanged.
+    # update at t=400: last 2 = (-40,1), (-60,1): C = (41 + 61)/2 = 51; G = 51 - 17 = 34; lr = 3e-4 - 34e-6
+    assert lrs[:3] == [3e-4, 3e-4, 3e-4]
+    assert lrs[3] == pytest.approx(3e-4 - 34e-6)
+    assert recom.logger.name_to_value["recom/cost"] == 51.0
+    assert recom.logger.name_to_value["recom/cost_gradient"] == 34.0
+
+
+def test_recom_shifted_window_and_clipping():
+    recom = Recom(interval=100, window=2, gain=1e-3, lr_min=1e-4, lr_max=5e-4, previous="shifted")
+    lrs = drive_recom(recom, [(0.0, []), (1.0, [-10.0, -20.0, -90.0])])
+    # episodes (-10,1), (-20,1), (-90,1): C_ret over last 2 = (21+91)/2 = 56, C_prev over (-10,-20) = 16
+    # G = 40, lr = 3e-4 - 0.04 -> clipped to 1e-4
+    assert lrs[-1] == 1e-4
+    assert recom.logger.name_to_value["recom/cost_prev"] == 16.0
+
+
+def test_recom_learning_rate_reaches_the_optimizer():
+    cfg = compose_cfg(["agent=recom_l2", "agent.ppo.n_steps=256", "agent.ppo.n_epochs=1",
+                       "agent.recom.interval=256", "agent.recom.gain=1e-3"])
+    env = HoverVecEnv(n_envs=2, seed=0, episode_seconds=0.5, wind=WindSchedule(speeds=[0.0]))
+    model = build_ppo(cfg.agent, env, seed=0)
+    remedies = build_remedies(cfg.agent)
+    recom = remedies[-1]
+    seen = []
+    original_train = model.train
+
+    def train_and_record():
+        original_train()
+        seen.append((recom.schedule.value, model.policy.optimizer.param_groups[0]["lr"],
+                     model.policy.optimizer.param_groups[1]["lr"], model.logger.name_to_value["train/learning_rate"]))
+
+    model.train = train_and_record
+    model.learn(256 * 2 * 4, callback=remedies)
+    lrs = [s[0] for s in seen]
+    assert len(set(lrs)) > 1, "RECOM never changed the learning rate"
+    for target, group0, group1, logged in seen:
+        assert group0 == group1 == logged == pytest.approx(target)
+    assert model.policy.optimizer.param_groups[0]["weight_decay"] == cfg.agent.l2.coef
+
+
+# ---- L2 ----------------------------------------------------------------------------------------
+
+
+def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term():
+    env = HoverVecEnv(n_envs=1, seed=0)
+    ppo = build_ppo(compose_cfg(["agent=ppo"]).agent, env, seed=0)
+    l2_cfg = compose_cfg(["agent=l2"]).agent
+    l2 = build_ppo(l2_cfg, env, seed=0)
+    (remedy,) = build_remedies(l2_cfg)
+    remedy.init_callback(l2)
+    base = ppo.policy.optimizer
+    new = l2.policy.optimizer
+    assert type(base) is type(new) is torch.optim.Adam
+    keys = set(base.defaults) - {"weight_decay"}
+    for group in new.param_groups:
+        assert {k: group[k] for k in keys} == {k: base.param_groups[0][k] for k in keys}
+    assert base.param_groups[0]["eps"] == 1e-5
+    assert base.param_groups[0]["weight_decay"] == 0
+    decayed, plain = new.param_groups
+    assert decayed["weight_decay"] == 1e-3 and plain["weight_decay"] == 0.0
+    names = {id(p): n for n, p in l2.policy.named_parameters()}
+    assert {names[id(p)] for p in plain["params"]} == {"log_std"}
+    assert sum(p.numel() for g in new.param_groups for p in g["params"]) == sum(p.numel() for p in l2.policy.parameters())
+
+
+def test_l2_scope_is_configurable():
+    env = HoverVecEnv(n_envs=1, seed=0)
+    model = build_ppo(compose_cfg().agent, env, seed=0)
+    L2Regularization(coef=0.1, params=["policy"], biases=False).init_callback(model)
+    names = {id(p): n for n, p in model.policy.named_parameters()}
+    decayed = {names[id(p)] for p in model.policy.optimizer.param_groups[0]["params"]}
+    assert decayed == {"mlp_extractor.policy_net.0.weight", "mlp_extractor.policy_net.2.weight", "action_net.weight"}

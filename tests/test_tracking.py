@@ -1,0 +1,57 @@
+"""Real runs into a real temporary MLflow store: tags, metric histories, artifacts, failure status."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+from conftest import TINY, compose_cfg
+from sweep.run import run
+from sweep.tracking import MlflowWriter, TrackedRun, flatten, tracking_uri
+
+
+def all_runs(uri: str):
+    client = MlflowClient(uri)
+    return client, client.search_runs([e.experiment_id for e in client.search_experiments()])
+
+
+def test_tracking_uri_is_absolute(monkeypatch, tmp_path):
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    assert tracking_uri(None).startswith("sqlite:////") and tracking_uri(None).endswith("/mlflow.db")
+    monkeypatch.chdir(tmp_path)
+    assert tracking_uri("sqlite:///rel.db") == f"sqlite:///{tmp_path / 'rel.db'}"
+
+
+def test_flatten_config():
+    assert flatten({"a": {"b": 1, "c": [1, 2]}, "d": None}) == {"a.b": "1", "a.c": "[1, 2]", "d": "None"}
+
+
+def test_single_tiny_run_writes_one_tracked_run(store, tmp_path):
+    cfg = compose_cfg(["agent=ppo", "seed=3", "wind=paper", *TINY])
+    run_id = run(cfg, tmp_path / "job")
+    client, runs = all_runs(store)
+    assert [r.info.run_id for r in runs] == [run_id]
+    r = runs[0]
+    assert r.info.status == "FINISHED"
+    assert {k: r.data.tags[k] for k in ("agent", "wind", "seed", "sweep")} == \
+           {"agent": "ppo", "wind": "paper", "seed": "3", "sweep": "single"}
+    assert r.data.params["train.total_timesteps"] == "1024" and r.data.params["wind.speeds"] == "[3.0, 2.0, 2.5, 1.5, 2.5]"
+    rewards = client.get_metric_history(run_id, "rollout/ep_rew_mean")
+    assert [m.step for m in rewards] == [512, 1024]
+    for key in ("train/loss", "train/learning_rate", "plasticity/dormant_ratio", "env/wind_speed",
+                "eval/success_rate", "eval/mse_x", "eval/mse_y", "eval/mse_z"):
+        assert client.get_metric_history(run_id, key), key
+    artifacts = {a.path for a in client.list_artifacts(run_id)}
+    assert {"config.yaml", "model.zip", "eval_trajectories.npz"} <= artifacts
+
+
+def test_failing_run_ends_failed_with_reason(store, tmp_path):
+    cfg = compose_cfg(TINY)
+    with pytest.raises(RuntimeError):
+        with TrackedRun(cfg, {"agent": "ppo"}) as tracked:
+            MlflowWriter(tracked).write({"rollout/ep_rew_mean": -3.0, "note": "text"}, {}, step=7)
+            raise RuntimeError("boom")
+    client, (r,) = all_runs(store)
+    assert r.info.status == "FAILED" and r.data.tags["failure_reason"] == "RuntimeError: boom"
+    assert [(m.step, m.value) for m in client.get_metric_history(r.info.run_id, "rollout/ep_rew_mean")] == [(7, -3.0)]
