@@ -9,6 +9,8 @@ from sweep.envs.backends.base import Backend
 
 BACKENDS = {
     "rotorpy": "sweep.envs.backends.rotorpy_backend:RotorPyBackend",
+    "rotorpy_rk4": "sweep.envs.backends.rotorpy_backend:RotorPyRK4Backend",
+    "fast": "sweep.envs.backends.fast:FastBackend",
 }
 
 
