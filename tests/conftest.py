@@ -21,6 +21,14 @@ def compose_cfg(overrides: list[str] | None = None):
         return compose(config_name="config", overrides=overrides or [])
 
 
+@pytest.fixture(autouse=True)
+def checkpoint_dir(tmp_path, monkeypatch) -> Path:
+    """Checkpoints of test runs go to the test's temp dir, never to <project root>/checkpoints."""
+    path = tmp_path / "checkpoints"
+    monkeypatch.setenv("SWEEP_CHECKPOINT_DIR", str(path))
+    return path
+
+
 @pytest.fixture
 def store(tmp_path, monkeypatch) -> str:
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"

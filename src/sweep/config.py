@@ -71,6 +71,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("train.total_timesteps", positive_int, "an integer > 0"),
     ("train.progress_every_s", positive, "a number > 0"),
     ("train.torch_threads", positive_int, "an integer > 0"),
+    ("train.checkpoint_every", positive_int, "an integer > 0 (timesteps)"),
     ("env.backend", lambda v: v in _backend_names(), "one of " + "|".join(sorted(_backend_names()))),
     ("env.n_envs", positive_int, "an integer > 0"),
     ("env.sim_rate", positive, "a number > 0 (Hz)"),

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 log = logging.getLogger("sweep")
@@ -43,6 +45,28 @@ class ProgressLine(BaseCallback):
         eta = (self.total - done) / rate if rate > 0 else float("inf")
         log.info("[%s] %s/%s ts (%.1f%%) | %s ts/s | ETA %s", self.label, f"{done:,}", f"{self.total:,}",
                  100.0 * done / self.total, f"{rate:,.0f}", _duration(eta) if eta != float("inf") else "?")
+
+
+class NonFiniteError(FloatingPointError):
+    """The training loss or the network's parameters became NaN/inf."""
+
+
+class NonFiniteGuard(BaseCallback):
+    """After every update: stop the run if ``train/loss`` or any parameter is not finite."""
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        loss = self.model.logger.name_to_value.get("train/loss")
+        if loss is not None and not math.isfinite(loss):
+            raise NonFiniteError(f"train/loss={loss} after the update at {self.num_timesteps} timesteps")
+        for name, p in self.model.policy.named_parameters():
+            if not torch.isfinite(p).all():
+                raise NonFiniteError(f"parameter {name} is not finite after the update at {self.num_timesteps} timesteps")
 
 
 class EnvMonitor(BaseCallback):

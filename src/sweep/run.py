@@ -20,13 +20,14 @@ from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.utils import set_random_seed
 
 from sweep.agents import build_ppo, build_remedies
+from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, validate
 from sweep.envs import WindSchedule
 from sweep.evaluate import evaluate, make_env
-from sweep.monitor import EnvMonitor, ProgressLine
+from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
-from sweep.status import write_status
-from sweep.tracking import MlflowWriter, TrackedRun
+from sweep.status import read_status, write_status
+from sweep.tracking import PROJECT_ROOT, MlflowWriter, TrackedRun, last_logged_step, tracking_uri
 
 log = logging.getLogger("sweep")
 
@@ -43,31 +44,73 @@ def job_tags(cfg: DictConfig) -> dict[str, str]:
     return tags
 
 
+def job_record(cfg: DictConfig) -> JobRecord:
+    """The checkpoint directory of this job: ``resume`` names one, else the config's own."""
+    uri = tracking_uri(cfg.tracking.uri)
+    root = Path(cfg.train.checkpoint_dir) if cfg.train.checkpoint_dir else PROJECT_ROOT / "checkpoints"
+    own = JobRecord(root / job_key(cfg, uri))
+    resume = str(cfg.resume)
+    if resume in ("auto", "never"):
+        return own
+    path = Path(resume)
+    if (path / "job.json").exists():
+        return JobRecord(path)
+    if (path / "status.json").exists() and (read_status(path) or {}).get("checkpoint_dir"):
+        return JobRecord(Path(read_status(path)["checkpoint_dir"]))
+    from mlflow.tracking import MlflowClient
+
+    try:
+        return JobRecord(Path(MlflowClient(uri).get_run(resume).data.tags["checkpoint_dir"]))
+    except Exception as err:  # noqa: BLE001
+        raise ConfigError(f"resume={resume!r}: must be auto, never, a job output dir or an MLflow run id "
+                          f"of this store with a checkpoint ({type(err).__name__})") from None
+
+
 def run(cfg: DictConfig, out_dir: Path) -> str:
-    """Train and evaluate one agent/wind/seed; returns the MLflow run id."""
+    """Train and evaluate one agent/wind/seed (continuing its checkpoint if any); returns the MLflow run id."""
     validate(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.train.torch_threads)
+    # No argument checks in torch.distributions: a NaN update then surfaces as train/loss=nan, which
+    # NonFiniteGuard reports, instead of a ValueError deep inside SB3's next minibatch.
+    torch.distributions.Distribution.set_default_validate_args(False)
     set_random_seed(cfg.seed)
     tags = job_tags(cfg)
+
+    record = job_record(cfg)
+    previous = {} if str(cfg.resume) == "never" else record.read()
+    if previous.get("status") == "FINISHED":
+        log.info("[%s] already complete (MLflow run %s); not retrained", tags["run_name"], previous["run_id"])
+        return previous["run_id"]
+    state = load_checkpoint(record.checkpoint) if previous else None
 
     wind = WindSchedule(speeds=list(cfg.wind.speeds), segment_steps=cfg.wind.segment_steps,
                         direction=list(cfg.wind.direction), name=cfg.wind.name)
     env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed)
     model = build_ppo(cfg.agent, env, cfg.seed)
-    callbacks = build_remedies(cfg.agent) + [
-        PlasticityDiagnostics(**cfg.plasticity),
-        EnvMonitor(),
-        ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s),
-    ]
-    with TrackedRun(cfg, tags) as tracked:
-        log.info("[%s] MLflow run %s in %s", tags["run_name"], tracked.run_id, tracked.uri)
+    callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()]
+    checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
+    callbacks += [NonFiniteGuard(), checkpointer,
+                  ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
+
+    run_id = previous.get("run_id") if previous else None
+    with TrackedRun(cfg, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
+        record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri)
+        write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
+        log.info("[%s] MLflow run %s in %s%s", tags["run_name"], tracked.run_id, tracked.uri,
+                 f" (resumed at {state['num_timesteps']:,} timesteps)" if state else "")
         config_path = out_dir / "config.yaml"
         OmegaConf.save(cfg, config_path, resolve=True)
         tracked.log_artifact(config_path)
-        model.set_logger(Logger(str(out_dir), [CSVOutputFormat(str(out_dir / "progress.csv")), MlflowWriter(tracked)]))
+        writer = MlflowWriter(tracked, after_step=last_logged_step(tracked) if run_id else -1)
+        model.set_logger(Logger(str(out_dir), [CSVOutputFormat(str(out_dir / "progress.csv")), writer]))
 
-        model.learn(total_timesteps=cfg.train.total_timesteps, callback=CallbackList(callbacks))
+        if state:
+            Checkpointer.prepare_model(model, state)
+        remaining = cfg.train.total_timesteps - model.num_timesteps
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), reset_num_timesteps=state is None)
+            checkpointer.save()
 
         metrics, flights = evaluate(model, cfg)
         tracked.log_metrics(metrics, model.num_timesteps)
@@ -77,7 +120,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
             model.save(out_dir / "model.zip")
             tracked.log_artifact(out_dir / "model.zip")
         log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
-        return tracked.run_id
+    record.write(status="FINISHED")
+    return tracked.run_id
 
 
 def run_job(cfg: DictConfig) -> str | None:
@@ -95,10 +139,12 @@ def run_job(cfg: DictConfig) -> str | None:
         return None
     except Exception as err:  # noqa: BLE001 - every failure is recorded; the sweep goes on
         log.exception("job failed")
-        print(f"sweep: job failed: {type(err).__name__}: {err}  (traceback in {out_dir})", file=sys.stderr)
-        write_status(out_dir, "FAILED", reason=f"{type(err).__name__}: {err}", overrides=overrides)
+        print(f"sweep: job failed: {type(err).__name__}: {err}  (log in {out_dir})", file=sys.stderr)
+        write_status(out_dir, "FAILED", reason=f"{type(err).__name__}: {err}", overrides=overrides,
+                     **{k: v for k, v in (read_status(out_dir) or {}).items() if k in ("run_id", "checkpoint_dir")})
         if not multirun:
             sys.exit(1)
         return None
-    write_status(out_dir, "FINISHED", run_id=run_id, overrides=overrides)
+    write_status(out_dir, "FINISHED", run_id=run_id, overrides=overrides,
+                 **{k: v for k, v in (read_status(out_dir) or {}).items() if k == "checkpoint_dir"})
     return run_id

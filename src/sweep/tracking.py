@@ -115,13 +115,25 @@ class TrackedRun:
         return False
 
 
-class MlflowWriter(KVWriter):
-    """SB3 logger output: one MLflow ``log_batch`` per logger dump, step = environment timesteps."""
+def last_logged_step(run: TrackedRun) -> int:
+    """Largest step of the run's SB3 dumps so far (-1 if none): a resumed run logs only later steps."""
+    history = run.client.get_metric_history(run.run_id, "time/total_timesteps")
+    return max((m.step for m in history), default=-1)
 
-    def __init__(self, run: TrackedRun) -> None:
-        self.run = run
+
+class MlflowWriter(KVWriter):
+    """SB3 logger output: one MLflow ``log_batch`` per logger dump, step = environment timesteps.
+
+    ``after_step``: dumps at or before this step are dropped (a resumed run re-plays the steps between
+    its checkpoint and the crash, which the first attempt already logged).
+    """
+
+    def __init__(self, run: TrackedRun, after_step: int = -1) -> None:
+        self.run, self.after_step = run, int(after_step)
 
     def write(self, key_values: dict[str, Any], key_excluded: dict[str, Any], step: int = 0) -> None:
+        if step <= self.after_step:
+            return
         metrics = {k: v for k, v in key_values.items()
                    if not (key_excluded.get(k) and "mlflow" in key_excluded[k])}
         metrics.pop("time/iterations", None)

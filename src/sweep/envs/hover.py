@@ -107,6 +107,19 @@ class HoverVecEnv(VecEnv):
             | np.any(np.abs(s.w) > 100.0, axis=1)
         )
 
+    # ---- checkpoints ----------------------------------------------------------------------------
+    def get_state(self) -> dict[str, Any]:
+        """Everything needed to continue exactly where this env is (vehicles, clocks, RNG)."""
+        return {"sim": self.sim.get_state(), "global_step": self.global_step, "t_idx": self.t_idx.copy(),
+                "ep_return": self.ep_return.copy(), "rng": self._rng.bit_generator.state}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        self.sim.set_state(state["sim"])
+        self.global_step = int(state["global_step"])
+        self.t_idx[...] = state["t_idx"]
+        self.ep_return[...] = state["ep_return"]
+        self._rng.bit_generator.state = state["rng"]
+
     # ---- VecEnv API ---------------------------------------------------------------------------
     def reset(self) -> np.ndarray:
         self._reset_envs(np.arange(self.num_envs))

@@ -28,6 +28,12 @@ class PlasticityDiagnostics(BaseCallback):
         self.saturation, self.srank_delta = float(saturation), float(srank_delta)
         self.rollouts = 0
 
+    def state_dict(self) -> dict:
+        return {"rollouts": self.rollouts}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.rollouts = state["rollouts"]
+
     def _on_step(self) -> bool:
         return True
 

@@ -71,16 +71,11 @@ class Recom(BaseCallback):
         self.episodes.clear()
         self.episodes.extend(tuple(e) for e in state["episodes"])
         self.last_loss, self.cost_prev, self.next_update = state["last_loss"], state["cost_prev"], state["next_update"]
-        if self.schedule is not None and state["lr"] is not None:
-            self.schedule.value = state["lr"]
-        self._pending_lr = state["lr"]
+        self.schedule.value = state["lr"]  # called after _init_callback (see sweep.checkpoint)
 
     # -- SB3 hooks --
     def _init_callback(self) -> None:
-        lr = getattr(self, "_pending_lr", None)
-        if lr is None:
-            lr = float(self.model.lr_schedule(1.0))
-        self.schedule = AdaptiveLR(lr)
+        self.schedule = AdaptiveLR(float(self.model.lr_schedule(1.0)))
         self.model.lr_schedule = self.schedule
 
     def _on_rollout_start(self) -> None:

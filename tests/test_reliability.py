@@ -1,0 +1,144 @@
+"""Long-run reliability: kill -9 and resume, determinism, failures inside a multirun, concurrent jobs."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from mlflow.tracking import MlflowClient
+
+from conftest import ROOT, TINY, compose_cfg, run_cli
+from sweep.checkpoint import load_checkpoint
+from sweep.run import run
+
+TESTS = Path(__file__).parent
+
+
+def runs_of(uri):
+    client = MlflowClient(uri)
+    return client, client.search_runs([e.experiment_id for e in client.search_experiments()])
+
+
+def history(client, run_id, key):
+    return [(m.step, m.value) for m in client.get_metric_history(run_id, key)]
+
+
+RECOM_RUN = ["agent=recom_l2", "seed=4", "train.total_timesteps=6144", "agent.ppo.n_steps=512", "agent.ppo.n_epochs=2",
+             "agent.recom.interval=1024", "agent.recom.window=2", "agent.recom.gain=1e-6", "train.checkpoint_every=1024",
+             "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
+
+
+def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir):
+    uri = f"sqlite:///{tmp_path / 'killed.db'}"
+    args = [*RECOM_RUN, f"hydra.run.dir={tmp_path / 'out'}"]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
+    proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    checkpoint = None
+    while time.time() < deadline and proc.poll() is None:
+        found = list(checkpoint_dir.glob("*/checkpoint.pt"))
+        if found and load_checkpoint(found[0])["num_timesteps"] >= 2048:
+            checkpoint = found[0]
+            break
+        time.sleep(0.2)
+    assert checkpoint is not None and proc.poll() is None, "run ended before it could be killed mid-way"
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed_at = load_checkpoint(checkpoint)["num_timesteps"]
+    assert killed_at < 6144
+
+    again = run_cli(args, uri, ROOT)
+    assert again.returncode == 0, again.stderr[-2000:]
+    client, runs = runs_of(uri)
+    assert len(runs) == 1 and runs[0].info.status == "FINISHED"
+    run_id = runs[0].info.run_id
+    steps = [s for s, _ in history(client, run_id, "time/total_timesteps")]
+    assert steps == list(range(512, 6144 + 1, 512))  # strictly increasing, none missing, none duplicated
+
+    # The resumed run is the run that would have happened: same histories as an uninterrupted one.
+    ref_uri = f"sqlite:///{tmp_path / 'reference.db'}"
+    ref = run_cli([*RECOM_RUN, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, ROOT)
+    assert ref.returncode == 0, ref.stderr[-2000:]
+    ref_client, (ref_run,) = runs_of(ref_uri)
+    for key in ("train/learning_rate", "rollout/ep_rew_mean", "train/loss", "recom/cost"):
+        assert history(client, run_id, key) == history(ref_client, ref_run.info.run_id, key), key
+    assert len({v for _, v in history(client, run_id, "train/learning_rate")}) > 1
+
+    # A completed run is not retrained.
+    third = run_cli(args, uri, ROOT)
+    assert third.returncode == 0 and len(runs_of(uri)[1]) == 1
+    assert len(history(client, run_id, "time/total_timesteps")) == len(steps)
+
+
+def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch):
+    histories = []
+    for attempt in range(2):
+        uri = f"sqlite:///{tmp_path / f'{attempt}.db'}"
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+        run_id = run(compose_cfg(["agent=l2", "seed=11", "train.total_timesteps=1536", "agent.ppo.n_steps=512",
+                                  "eval.episodes=2", "env.episode_seconds=1.0"]), tmp_path / f"job{attempt}")
+        client = MlflowClient(uri)
+        histories.append({k: history(client, run_id, k) for k in ("rollout/ep_rew_mean", "train/loss")})
+    assert histories[0] == histories[1] and len(histories[0]["train/loss"]) == 2
+
+
+@pytest.mark.parametrize("kind,reason", [("raise", "RuntimeError: injected failure"), ("nan", "NonFiniteError")])
+def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
+    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    env_path = os.environ.get("PYTHONPATH", "")
+    os.environ["PYTHONPATH"] = f"{TESTS}{os.pathsep}{env_path}"
+    try:
+        proc = run_cli(["-m", "seed=0,1", *TINY, "train.total_timesteps=1536", "train.checkpoint_every=512",
+                        "+agent.fault._target_=faults.Fault", "+agent.fault.seed=1", "+agent.fault.at_step=1024",
+                        f"+agent.fault.kind={kind}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
+                        "hydra.launcher.n_jobs=2"], uri, ROOT)
+    finally:
+        os.environ["PYTHONPATH"] = env_path
+    assert proc.returncode == 1
+    assert "1/2 jobs finished" in proc.stdout
+    failed_lines = [line for line in proc.stderr.splitlines() if line.startswith("sweep: job 1 FAILED")]
+    assert len(failed_lines) == 1 and reason in failed_lines[0] and "seed=1" in failed_lines[0]
+    client, runs = runs_of(uri)
+    status = {r.data.tags["seed"]: r for r in runs}
+    assert status["0"].info.status == "FINISHED"
+    assert status["1"].info.status == "FAILED" and reason in status["1"].data.tags["failure_reason"]
+    kept = load_checkpoint(Path(status["1"].data.tags["checkpoint_dir"]) / "checkpoint.pt")
+    assert kept is not None and kept["num_timesteps"] == 512   # the last good state, before the fault
+
+
+def test_four_concurrent_jobs_on_a_fresh_store(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'fresh.db'}"
+    proc = run_cli(["-m", "agent=ppo,l2", "seed=0,1", *TINY, "eval.episodes=1", "env.episode_seconds=1.0",
+                    f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=4"], uri, ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    client, runs = runs_of(uri)
+    assert len(runs) == 4 and all(r.info.status == "FINISHED" for r in runs)
+    for r in runs:
+        for key in ("rollout/ep_rew_mean", "time/total_timesteps", "plasticity/dormant_ratio"):
+            assert [s for s, _ in history(client, r.info.run_id, key)] == [512, 1024], key
+
+
+def test_submitit_local_launcher(tmp_path):
+    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    proc = run_cli(["-m", "hydra/launcher=submitit_local", "hydra.launcher.cpus_per_task=1", "seed=0,1", *TINY,
+                    "train.total_timesteps=512", "eval.episodes=1", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    _, runs = runs_of(uri)
+    assert sorted(r.data.tags["seed"] for r in runs) == ["0", "1"] and all(r.info.status == "FINISHED" for r in runs)
+
+
+def test_slurm_preset_composes():
+    from hydra import compose, initialize_config_dir
+
+    from conftest import CONF
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["hydra/launcher=slurm"], return_hydra_config=True)
+    launcher = cfg.hydra.launcher
+    assert launcher._target_.endswith("SlurmLauncher") and launcher.cpus_per_task == 1
