@@ -52,8 +52,12 @@ def test_crazyflie_params_from_rotorpy_with_paper_motor_constant():
     assert hover_rotor_speed(p) == pytest.approx(1788.5, abs=0.5)
 
 
-def test_hover_action_without_wind_stays_near_start_for_one_second():
-    env = HoverVecEnv(n_envs=3, wind=WindSchedule(speeds=[0.0]), seed=3)
+BACKENDS = ["rotorpy", "fast"]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_hover_action_without_wind_stays_near_start_for_one_second(backend):
+    env = HoverVecEnv(n_envs=3, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=3)
     obs = env.reset()
     start = obs[:, :3].copy()
     for _ in range(100):
@@ -62,8 +66,9 @@ def test_hover_action_without_wind_stays_near_start_for_one_second():
     assert np.abs(obs[:, :3] - start).max() < 0.01
 
 
-def test_wind_pushes_the_vehicle_downwind():
-    env = HoverVecEnv(n_envs=1, wind=WindSchedule(speeds=[3.0], direction=[1, 0, 0]), seed=3)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_wind_pushes_the_vehicle_downwind(backend):
+    env = HoverVecEnv(n_envs=1, backend=backend, wind=WindSchedule(speeds=[3.0], direction=[1, 0, 0]), seed=3)
     obs = env.reset()
     x0 = obs[0, 0]
     for _ in range(100):
@@ -71,8 +76,9 @@ def test_wind_pushes_the_vehicle_downwind():
     assert obs[0, 0] - x0 > 0.05
 
 
-def test_time_limit_is_per_env_truncation_with_own_terminal_observation():
-    env = HoverVecEnv(n_envs=3, wind=WindSchedule(speeds=[0.0]), seed=1, episode_seconds=0.2)  # 20 steps
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_time_limit_is_per_env_truncation_with_own_terminal_observation(backend):
+    env = HoverVecEnv(n_envs=3, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=1, episode_seconds=0.2)
     env.reset()
     for step in range(1, 21):
         before = env.sim.x.copy()
@@ -99,8 +105,9 @@ def test_episode_is_exactly_500_steps():
     assert step == 500 and infos[0]["TimeLimit.truncated"]
 
 
-def test_out_of_bounds_is_termination_not_truncation():
-    env = HoverVecEnv(n_envs=2, wind=WindSchedule(speeds=[0.0]), seed=0)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_out_of_bounds_is_termination_not_truncation(backend):
+    env = HoverVecEnv(n_envs=2, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=0)
     env.reset()
     actions = hover_action(env)
     actions[0] = 1.0  # full throttle on vehicle 0: climbs out of the +-4 m box

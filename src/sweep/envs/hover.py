@@ -34,7 +34,7 @@ class HoverVecEnv(VecEnv):
     def __init__(
         self,
         n_envs: int = 1,
-        backend: str = "rotorpy",
+        backend: str = "fast",
         wind: WindSchedule | None = None,
         reward: HoverReward | None = None,
         sim_rate: float = 100.0,
@@ -72,11 +72,21 @@ class HoverVecEnv(VecEnv):
         self.ep_start_time = np.full(n_envs, time.time())
         self._actions = np.zeros((n_envs, 4), dtype=np.float32)
         self._rng = np.random.default_rng(seed)
+        self._wind_speed: float | None = None
+        self._wind_array = np.zeros((n_envs, 3))
 
     # ---- task pieces -------------------------------------------------------------------------
     def actions_to_rotor_speeds(self, actions: np.ndarray) -> np.ndarray:
-        a = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
-        return self.speed_min + (a + 1.0) * 0.5 * (self.speed_max - self.speed_min)
+        """Actions in [-1, 1] (already clipped) -> commanded rotor speeds, linearly (RotorPy's mapping)."""
+        return self.speed_min + (actions.astype(np.float64) + 1.0) * 0.5 * (self.speed_max - self.speed_min)
+
+    def _wind_now(self) -> np.ndarray:
+        """(N, 3) wind of the current global step, rebuilt only when the speed changes."""
+        speed = self.wind.speed_at(self.global_step)
+        if speed != self._wind_speed:
+            self._wind_speed = speed
+            self._wind_array = np.ascontiguousarray(np.tile(self.wind.velocity_at(self.global_step), (self.num_envs, 1)))
+        return self._wind_array
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         k = len(idx)
@@ -130,8 +140,7 @@ class HoverVecEnv(VecEnv):
 
     def step_wait(self):
         actions = np.clip(self._actions, -1.0, 1.0)
-        wind = np.broadcast_to(self.wind.velocity_at(self.global_step), (self.num_envs, 3))
-        self.sim.step(self.actions_to_rotor_speeds(actions), np.ascontiguousarray(wind))
+        self.sim.step(self.actions_to_rotor_speeds(actions), self._wind_now())
         self.global_step += self.num_envs
         self.t_idx += 1
 
@@ -143,6 +152,8 @@ class HoverVecEnv(VecEnv):
         dones = terminated | truncated
 
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        if not dones.any():
+            return obs, rewards, dones, infos
         done_idx = np.flatnonzero(dones)
         now = time.time()
         for i in done_idx:
@@ -150,9 +161,8 @@ class HoverVecEnv(VecEnv):
             infos[i]["TimeLimit.truncated"] = bool(truncated[i])
             infos[i]["episode"] = {"r": float(self.ep_return[i]), "l": int(self.t_idx[i]),
                                    "t": round(now - self.ep_start_time[i], 6)}
-        if len(done_idx):
-            self._reset_envs(done_idx)
-            obs[done_idx] = self._obs()[done_idx]
+        self._reset_envs(done_idx)
+        obs[done_idx] = self._obs()[done_idx]
         return obs, rewards, dones, infos
 
     def close(self) -> None:
