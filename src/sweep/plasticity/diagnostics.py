@@ -45,7 +45,10 @@ class PlasticityDiagnostics(BaseCallback):
 
     def _recent_batch(self):
         buf = self.model.rollout_buffer
-        flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731  (steps, envs, ...) -> (steps*envs, ...)
+        if buf.generator_ready:  # SB3 already flattened it for an update (env-major order)
+            flat = lambda a: a  # noqa: E731
+        else:  # (steps, envs, ...) -> (steps*envs, ...), most recent steps last
+            flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
         n = buf.buffer_size * buf.n_envs
         idx = slice(max(0, n - self.batch_size), n)
         obs, actions, old_log_prob, advantages, returns = (
