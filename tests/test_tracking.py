@@ -46,6 +46,14 @@ def test_single_tiny_run_writes_one_tracked_run(store, tmp_path):
     assert {"config.yaml", "model.zip", "eval_trajectories.npz"} <= artifacts
 
 
+def test_periodic_evaluation_is_logged_during_training(store, tmp_path):
+    cfg = compose_cfg(["train.total_timesteps=1536", "agent.ppo.n_steps=512", "eval.episodes=2",
+                       "eval.every_timesteps=1024", "env.episode_seconds=1.0"])
+    run_id = run(cfg, tmp_path / "job")
+    steps = [m.step for m in MlflowClient(store).get_metric_history(run_id, "eval/success_rate")]
+    assert steps == [1024, 1536]  # during training, then the final evaluation
+
+
 def test_failing_run_ends_failed_with_reason(store, tmp_path):
     cfg = compose_cfg(TINY)
     with pytest.raises(RuntimeError):

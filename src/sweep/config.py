@@ -116,6 +116,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("plasticity.saturation", unit_interval, "a number in [0, 1]"),
     ("plasticity.srank_delta", unit_interval, "a number in [0, 1]"),
     ("eval.episodes", positive_int, "an integer >= 1"),
+    ("eval.every_timesteps", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (0: only at the end)"),
     ("eval.wind_speed", non_negative, "a number >= 0 (m/s)"),
     ("eval.direction", vector3, "a non-zero 3-vector [x, y, z]"),
     ("eval.seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from omegaconf import DictConfig
+from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.reward import HoverReward
@@ -83,3 +84,30 @@ def evaluate(policy, cfg: DictConfig) -> tuple[dict[str, float], dict[str, np.nd
     trajectories = {**flights, "success": np.array(success), "mse": per_axis,
                     "dt": np.array(env.dt), "wind": wind.velocity_at(0)}
     return metrics, trajectories
+
+
+class PeriodicEvaluation(BaseCallback):
+    """Runs the protocol during training every ``every`` timesteps (after the rollout that passes it),
+    logging ``eval/*`` at that step. The final evaluation is done by ``run`` at the end."""
+
+    def __init__(self, cfg: DictConfig, every: int) -> None:
+        super().__init__()
+        self.cfg, self.every, self.next_at = cfg, int(every), int(every)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        if self.num_timesteps < self.next_at:
+            return
+        while self.next_at <= self.num_timesteps:
+            self.next_at += self.every
+        metrics, _ = evaluate(self.model, self.cfg)
+        for key, value in metrics.items():
+            self.logger.record(key, value)
+
+    def state_dict(self) -> dict:
+        return {"next_at": self.next_at}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.next_at = state["next_at"]

@@ -23,7 +23,7 @@ from sweep.agents import build_ppo, build_remedies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, validate
 from sweep.envs import WindSchedule
-from sweep.evaluate import evaluate, make_env
+from sweep.evaluate import PeriodicEvaluation, evaluate, make_env
 from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.status import read_status, write_status
@@ -89,6 +89,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed)
     model = build_ppo(cfg.agent, env, cfg.seed)
     callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()]
+    if cfg.eval.every_timesteps > 0:
+        callbacks.append(PeriodicEvaluation(cfg, cfg.eval.every_timesteps))
     checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
     callbacks += [NonFiniteGuard(), checkpointer,
                   ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
