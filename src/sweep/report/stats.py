@@ -1,0 +1,138 @@
+"""Aggregation over seeds: curves on a common timestep grid, per-run summaries, CIs, rliable scores.
+
+Statistics used (all over seeds; a seed is one run):
+* curve bands: 95% percentile-bootstrap CI of the mean at each grid point (``scipy.stats.bootstrap``);
+* Table III: mean +- half-width of the 95% Student-t CI (n - 1 degrees of freedom);
+* IQM: rliable's ``metrics.aggregate_iqm`` with a 95% stratified-bootstrap percentile CI;
+* probability of improvement: rliable's ``metrics.probability_of_improvement`` (Mann-Whitney U / (n_x n_y)),
+  with a 95% CI from independent bootstrap resampling of both agents' runs.
+
+rliable's own ``library.get_interval_estimates`` cannot be imported with the pinned stack (arch 7.2 calls
+pandas 3's ``deprecate_kwarg`` with the old signature; arch 8 drops the ``random_state`` rliable passes), so its
+stratified bootstrap is done with ``scipy.stats.bootstrap``: with one task (one agent x wind condition) a
+stratified bootstrap over runs is exactly an i.i.d. bootstrap over runs.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+from rliable import metrics
+from scipy import stats
+
+RESAMPLES = 2000
+FINAL_FRACTION = 0.1  # "final" value of a curve: mean over the last 10% of the run's timesteps
+RNG_SEED = 0
+
+
+def _bootstrap(data: tuple, statistic, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # degenerate resamples (identical seeds) -> a zero-width interval
+        return stats.bootstrap(data, statistic, n_resamples=RESAMPLES, method="percentile",
+                               confidence_level=0.95, rng=np.random.default_rng(RNG_SEED), **kwargs)
+
+
+def _rowwise(func):
+    """Vectorized form of an rliable metric for scipy.stats.bootstrap: ``func`` applied to each resample."""
+    def statistic(*samples, axis=-1):
+        flat = [np.moveaxis(x, axis, -1) for x in samples]
+        batch = flat[0].shape[:-1]
+        rows = zip(*(x.reshape(-1, x.shape[-1]) for x in flat))
+        return np.array([func(*(r[:, None] for r in row)) for row in rows]).reshape(batch)
+    return statistic
+
+
+def common_grid(histories: pd.DataFrame, points: int = 200) -> np.ndarray:
+    """Evenly spaced timesteps from the first to the last logged step of any run."""
+    return np.linspace(histories["step"].min(), histories["step"].max(), points)
+
+
+def aligned(histories: pd.DataFrame, key: str, run_ids, grid: np.ndarray) -> np.ndarray:
+    """(runs, grid) matrix of ``key`` linearly interpolated on ``grid``; NaN outside a run's logged range."""
+    rows = []
+    for run_id in run_ids:
+        h = histories[(histories["run_id"] == run_id) & (histories["key"] == key)]
+        if len(h):
+            rows.append(np.interp(grid, h["step"], h["value"], left=np.nan, right=np.nan))
+    return np.array(rows).reshape(len(rows), len(grid))
+
+
+def mean_band(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, CI low, CI high, n seeds) per grid point; the band is NaN where fewer than 2 seeds have data."""
+    n = np.sum(~np.isnan(matrix), axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(matrix, axis=0) if len(matrix) else np.full(matrix.shape[1], np.nan)
+    lo, hi = np.full_like(mean, np.nan), np.full_like(mean, np.nan)
+    full = n == len(matrix)
+    if len(matrix) >= 2 and full.any():
+        ci = _bootstrap((matrix[:, full],), np.mean, axis=0, vectorized=True).confidence_interval
+        lo[full], hi[full] = ci.low, ci.high
+    return mean, lo, hi, n
+
+
+def final_value(steps: np.ndarray, values: np.ndarray) -> float:
+    """Mean of the values logged in the last FINAL_FRACTION of the run's timesteps (at least the last one)."""
+    if len(values) == 0:
+        return np.nan
+    last = steps[-1]
+    return float(np.mean(values[steps >= last - FINAL_FRACTION * (last - steps[0])]))
+
+
+def collapse(values: np.ndarray) -> float:
+    """Largest drop of a reward curve below its running peak (0 for a curve that never falls)."""
+    s = pd.Series(values)
+    return float((s.cummax() - s).max()) if len(s) else np.nan
+
+
+def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
+    """One row per run: final reward, final dormant ratio, collapse of the reward curve."""
+    rows = []
+    for run_id, h in histories.groupby("run_id"):
+        rew = h[h["key"] == "rollout/ep_rew_mean"]
+        dor = h[h["key"] == "plasticity/dormant_ratio"]
+        rows.append({"run_id": run_id,
+                     "final_reward": final_value(rew["step"].to_numpy(), rew["value"].to_numpy()),
+                     "final_dormant": final_value(dor["step"].to_numpy(), dor["value"].to_numpy()),
+                     "collapse": collapse(rew["value"].to_numpy())})
+    return pd.DataFrame(rows, columns=["run_id", "final_reward", "final_dormant", "collapse"])
+
+
+def mean_t_ci(values) -> tuple[float, float, int]:
+    """(mean, half-width of the 95% Student-t CI, n) of the finite values; half-width NaN for n < 2."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return np.nan, np.nan, 0
+    if len(x) < 2:
+        return float(x.mean()), np.nan, 1
+    half = stats.t.ppf(0.975, len(x) - 1) * stats.sem(x) if np.ptp(x) > 0 else 0.0
+    return float(x.mean()), float(half), len(x)
+
+
+def iqm_ci(scores) -> tuple[float, float, float]:
+    """rliable IQM of per-run scores and its 95% stratified-bootstrap CI (NaN CI for fewer than 2 runs)."""
+    x = np.asarray(scores, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return np.nan, np.nan, np.nan
+    point = float(metrics.aggregate_iqm(x[:, None]))
+    if len(x) < 2:
+        return point, np.nan, np.nan
+    ci = _bootstrap((x,), _rowwise(metrics.aggregate_iqm), vectorized=True).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+def poi_ci(scores_x, scores_y) -> tuple[float, float, float]:
+    """rliable P(X > Y) over runs and its 95% CI (both samples resampled independently)."""
+    x, y = (np.asarray(s, dtype=float) for s in (scores_x, scores_y))
+    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+    if len(x) == 0 or len(y) == 0:
+        return np.nan, np.nan, np.nan
+    point = float(metrics.probability_of_improvement(x[:, None], y[:, None]))
+    if len(x) < 2 or len(y) < 2:
+        return point, np.nan, np.nan
+    ci = _bootstrap((x, y), _rowwise(metrics.probability_of_improvement), vectorized=True,
+                    paired=False).confidence_interval
+    return point, float(ci.low), float(ci.high)
