@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 from matplotlib import pyplot as plt
 from matplotlib.lines import Line2D
-from matplotlib.ticker import FuncFormatter, MaxNLocator
+from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 from sweep.report import stats, style
 
@@ -69,7 +69,7 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
     hist = histories[(histories["key"] == key) & histories["run_id"].isin(sub["run_id"])]
     if hist.empty:
         return []
-    grid = stats.common_grid(hist)
+    grid = stats.common_grid(hist)  # a single point if every run logged ``key`` once
     fig, ax = plt.subplots(figsize=(style.COLUMN_WIDTH, 2.3))
     seeds = []
     for agent in style.ordered(sub["agent"]):
@@ -78,16 +78,18 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
             continue
         mean, lo, hi, _ = stats.mean_band(matrix)
         ax.plot(grid, mean, color=colors[agent], linestyle=style.dashes(agent), linewidth=1.2,
+                marker="o" if len(grid) == 1 else None, markersize=3,
                 label=f"{style.label(agent)} (n={len(matrix)})")
         ax.fill_between(grid, lo, hi, color=colors[agent], alpha=0.2, linewidth=0)
         seeds.append(len(matrix))
     first = sub.iloc[0]
-    ax.set_xlim(0, grid[-1])
+    ax.set_xlim(0, grid[-1] * (1.05 if len(grid) == 1 else 1.0))
     mark_wind(ax, wind_changes(first["speeds"], first["segment_steps"], grid[-1]))
     timestep_axis(ax, grid[-1])
     ax.set_ylabel(ylabel)
     if logy:
         ax.set_yscale("log")
+        ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible
     if stem == "dormant":  # a percentage: from 0, at least 0-1% so an all-zero curve is not centred on 0
         ax.set_ylim(0, max(1.0, ax.get_ylim()[1]))
     ax.grid(True)
@@ -108,7 +110,8 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, out: 
     cols = min(len(agents), 2)
     rows = int(np.ceil(len(agents) / cols))
     spare = rows * cols > len(agents)  # the legend goes into the empty panel, else below the panels
-    fig = plt.figure(figsize=(style.COLUMN_WIDTH, 1.75 * rows + (0.1 if spare else 0.45)))
+    legend_h = 0.05 if spare else 0.6  # inches below the panels for the legend
+    fig = plt.figure(figsize=(style.COLUMN_WIDTH, 1.75 * rows + 0.1 + legend_h))
     bound = max(float(np.nanmax(np.abs(t["positions"]))) for t in trajs.values())
     bound = min(np.ceil(bound), 4.0)
     for i, agent in enumerate(agents):
@@ -143,8 +146,9 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, out: 
                    bbox_to_anchor=(0.75, 0.5 / rows))
     else:
         fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False, bbox_to_anchor=(0.5, 0.0),
-                   title=title.replace("\n", "; ", 1).replace("\n", ", "))
-    fig.subplots_adjust(left=0.02, right=0.95, top=0.93, bottom=0.02 if spare else 0.16, wspace=0.15, hspace=0.25)
+                   title=title.replace("'\nbest", "', best"))
+    fig.subplots_adjust(left=0.02, right=0.95, top=0.93, bottom=legend_h / fig.get_figheight(), wspace=0.15,
+                        hspace=0.25)
     return save(fig, out, "eval_flights_3d")
 
 

@@ -44,8 +44,8 @@ def _rowwise(func):
 
 
 def common_grid(histories: pd.DataFrame, points: int = 200) -> np.ndarray:
-    """Evenly spaced timesteps from the first to the last logged step of any run."""
-    return np.linspace(histories["step"].min(), histories["step"].max(), points)
+    """Evenly spaced timesteps from the first to the last logged step of any run (one point if they agree)."""
+    return np.unique(np.linspace(histories["step"].min(), histories["step"].max(), points))
 
 
 def aligned(histories: pd.DataFrame, key: str, run_ids, grid: np.ndarray) -> np.ndarray:
