@@ -23,7 +23,22 @@ def test_reward_matches_paper_formula_by_hand():
 
 
 def test_reward_weights_are_table_one():
-    assert HoverReward() == HoverReward(w_p=1.0, w_v=0.5, w_a=1e-5)
+    assert HoverReward() == HoverReward(w_p=1.0, w_v=0.5, w_a=1e-5, alive_bonus=0.0, crash_penalty=0.0)
+
+
+def test_alive_bonus_and_crash_penalty():
+    env = HoverVecEnv(n_envs=2, wind=WindSchedule(speeds=[0.0]), seed=0,
+                      reward=HoverReward(alive_bonus=2.0, crash_penalty=100.0))
+    env.reset()
+    actions = hover_action(env)
+    actions[0] = 1.0  # vehicle 0 climbs out of the box
+    for _ in range(500):
+        obs, rewards, dones, infos = env.step(actions)
+        if dones[0]:
+            break
+    final = np.stack([infos[0]["terminal_observation"], obs[1]])
+    plain = HoverReward()(final[:, :3], final[:, 3:6], actions)
+    np.testing.assert_allclose(rewards, plain + 2.0 - np.array([100.0, 0.0]), rtol=1e-5)
 
 
 @pytest.mark.parametrize("step,speed", [(0, 3.0), (1_999_999, 3.0), (2_000_000, 2.0), (4_000_000, 2.5),

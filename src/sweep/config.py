@@ -83,6 +83,8 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("env.reward.w_p", non_negative, "a number >= 0"),
     ("env.reward.w_v", non_negative, "a number >= 0"),
     ("env.reward.w_a", non_negative, "a number >= 0"),
+    ("env.reward.alive_bonus", non_negative, "a number >= 0"),
+    ("env.reward.crash_penalty", non_negative, "a number >= 0"),
     ("wind.speeds", speeds_list, "a non-empty list of speeds >= 0 (m/s)"),
     ("wind.segment_steps", positive_int, "an integer > 0"),
     ("wind.direction", vector3, "a non-zero 3-vector [x, y, z]"),

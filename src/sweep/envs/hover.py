@@ -145,9 +145,12 @@ class HoverVecEnv(VecEnv):
         self.t_idx += 1
 
         obs = self._obs()
-        rewards = self.reward_fn(self.sim.x, self.sim.v, actions).astype(np.float32)
-        self.ep_return += rewards
         terminated = self._out_of_bounds()
+        rewards = self.reward_fn(self.sim.x, self.sim.v, actions)
+        if self.reward_fn.crash_penalty:
+            rewards = rewards - self.reward_fn.crash_penalty * terminated
+        rewards = rewards.astype(np.float32)
+        self.ep_return += rewards
         truncated = (self.t_idx >= self.episode_steps) & ~terminated
         dones = terminated | truncated
 

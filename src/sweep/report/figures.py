@@ -53,10 +53,12 @@ def mark_wind(ax, spans) -> None:
     """Dotted vertical line at each wind change, the speed (m/s) written above each stretch."""
     if len(spans) < 2:
         return
-    left = ax.get_xlim()[0]
+    left, right = ax.get_xlim()
     for start, end, speed in spans:
         if start > 0:
             ax.axvline(start, color="0.45", linestyle=":", linewidth=0.7, zorder=0)
+        if end - start < 0.04 * (right - left):  # a sliver (e.g. the last rollout past a change): no label
+            continue
         ax.text((max(start, left) + end) / 2, 1.01, f"{speed:.1f}", transform=ax.get_xaxis_transform(), ha="center",
                 va="bottom", fontsize=7, color="0.3")
     ax.text(1.0, 1.01, " m/s", transform=ax.transAxes, ha="left", va="bottom", fontsize=7, color="0.3")
