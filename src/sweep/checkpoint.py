@@ -26,6 +26,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep.status import read_json, update_json
+
 
 def job_key(cfg: DictConfig, uri: str) -> str:
     """Stable id of a job: its resolved config without ``resume`` and the tracking store."""
@@ -45,14 +47,10 @@ class JobRecord:
         self.checkpoint = self.dir / "checkpoint.pt"
 
     def read(self) -> dict[str, Any]:
-        return json.loads(self.path.read_text()) if self.path.exists() else {}
+        return read_json(self.path)
 
     def write(self, **fields: Any) -> None:
-        self.dir.mkdir(parents=True, exist_ok=True)
-        data = {**self.read(), **fields}
-        tmp = self.path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(data, indent=2))
-        os.replace(tmp, self.path)
+        update_json(self.path, **fields)
 
 
 def _stateful(callbacks: list[BaseCallback]) -> list[BaseCallback]:

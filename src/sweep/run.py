@@ -55,8 +55,9 @@ def job_record(cfg: DictConfig) -> JobRecord:
     path = Path(resume)
     if (path / "job.json").exists():
         return JobRecord(path)
-    if (path / "status.json").exists() and (read_status(path) or {}).get("checkpoint_dir"):
-        return JobRecord(Path(read_status(path)["checkpoint_dir"]))
+    checkpoint_dir = (read_status(path) or {}).get("checkpoint_dir")
+    if checkpoint_dir:
+        return JobRecord(Path(checkpoint_dir))
     from mlflow.tracking import MlflowClient
 
     try:
@@ -142,11 +143,9 @@ def run_job(cfg: DictConfig) -> str | None:
     except Exception as err:  # noqa: BLE001 - every failure is recorded; the sweep goes on
         log.exception("job failed")
         print(f"sweep: job failed: {type(err).__name__}: {err}  (log in {out_dir})", file=sys.stderr)
-        write_status(out_dir, "FAILED", reason=f"{type(err).__name__}: {err}", overrides=overrides,
-                     **{k: v for k, v in (read_status(out_dir) or {}).items() if k in ("run_id", "checkpoint_dir")})
+        write_status(out_dir, "FAILED", reason=f"{type(err).__name__}: {err}", overrides=overrides)
         if not multirun:
             sys.exit(1)
         return None
-    write_status(out_dir, "FINISHED", run_id=run_id, overrides=overrides,
-                 **{k: v for k, v in (read_status(out_dir) or {}).items() if k == "checkpoint_dir"})
+    write_status(out_dir, "FINISHED", run_id=run_id, overrides=overrides)
     return run_id

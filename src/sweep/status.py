@@ -6,16 +6,25 @@ import sys
 from pathlib import Path
 
 
+def read_json(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def update_json(path: Path, **fields) -> None:
+    """Merge ``fields`` into the JSON record at ``path``, atomically (write a temp file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps({**read_json(path), **fields}, indent=2))
+    tmp.replace(path)
+
+
 def write_status(job_dir: Path, status: str, **fields) -> None:
-    job_dir.mkdir(parents=True, exist_ok=True)
-    tmp = job_dir / "status.json.tmp"
-    tmp.write_text(json.dumps({"status": status, **fields}, indent=2))
-    tmp.replace(job_dir / "status.json")
+    """Record the job's status; fields of earlier writes (run id, checkpoint dir) are kept."""
+    update_json(job_dir / "status.json", status=status, **fields)
 
 
 def read_status(job_dir: Path) -> dict | None:
-    path = job_dir / "status.json"
-    return json.loads(path.read_text()) if path.exists() else None
+    return read_json(job_dir / "status.json") or None
 
 
 def ui_command(uri: str) -> str:
