@@ -22,13 +22,17 @@ def test_reward_matches_paper_formula_by_hand():
     np.testing.assert_allclose(r(p, v, a), [-(5 + 0.5 * 2 + 1e-5 * 2), -(0.5 * 3)])
 
 
-def test_reward_weights_are_table_one():
-    assert HoverReward() == HoverReward(w_p=1.0, w_v=0.5, w_a=1e-5, alive_bonus=0.0, crash_penalty=0.0)
+def test_reward_weights_are_table_one_and_a_crash_gets_rotorpys_minus_500():
+    assert HoverReward() == HoverReward(w_p=1.0, w_v=0.5, w_a=1e-5, alive_bonus=0.0, crash_reward=-500.0)
+    p, v, a = np.ones((2, 3)), np.zeros((2, 3)), np.zeros((2, 4))
+    np.testing.assert_allclose(HoverReward()(p, v, a, crashed=np.array([True, False])), [-500.0, -np.sqrt(3)])
+    np.testing.assert_allclose(HoverReward(crash_reward=None)(p, v, a, crashed=np.array([True, False])),
+                               [-np.sqrt(3), -np.sqrt(3)])
 
 
-def test_alive_bonus_and_crash_penalty():
+def test_crash_step_reward_is_replaced_and_alive_bonus_added_to_the_others():
     env = HoverVecEnv(n_envs=2, wind=WindSchedule(speeds=[0.0]), seed=0,
-                      reward=HoverReward(alive_bonus=2.0, crash_penalty=100.0))
+                      reward=HoverReward(alive_bonus=2.0, crash_reward=-123.0))
     env.reset()
     actions = hover_action(env)
     actions[0] = 1.0  # vehicle 0 climbs out of the box
@@ -36,9 +40,27 @@ def test_alive_bonus_and_crash_penalty():
         obs, rewards, dones, infos = env.step(actions)
         if dones[0]:
             break
-    final = np.stack([infos[0]["terminal_observation"], obs[1]])
-    plain = HoverReward()(final[:, :3], final[:, 3:6], actions)
-    np.testing.assert_allclose(rewards, plain + 2.0 - np.array([100.0, 0.0]), rtol=1e-5)
+    assert dones[0] and infos[0]["crashed"] and not dones[1]
+    plain = HoverReward(crash_reward=None)(obs[1:, :3], obs[1:, 3:6], actions[1:])
+    np.testing.assert_allclose(rewards, [-123.0, plain[0] + 2.0], rtol=1e-5)
+
+
+@pytest.mark.parametrize("crash_reward", [-500.0, None])
+def test_episode_return_is_the_sum_of_its_step_rewards(crash_reward):
+    env = HoverVecEnv(n_envs=3, wind=WindSchedule(speeds=[2.0]), seed=4, reward=HoverReward(crash_reward=crash_reward))
+    env.reset()
+    rng = np.random.default_rng(0)
+    sums, finished = np.zeros(3), []
+    for _ in range(700):
+        actions = np.clip(hover_action(env) + rng.normal(scale=0.3, size=(3, 4)), -1, 1).astype(np.float32)
+        _, rewards, dones, infos = env.step(actions)
+        sums += rewards
+        for i in np.flatnonzero(dones):
+            finished.append((infos[i]["episode"]["r"], sums[i], infos[i]["crashed"]))
+            sums[i] = 0.0
+    assert len(finished) >= 3 and any(c for *_, c in finished)  # crashes included
+    for logged, summed, _ in finished:
+        assert logged == pytest.approx(summed, rel=1e-6, abs=1e-4)
 
 
 @pytest.mark.parametrize("step,speed", [(0, 3.0), (1_999_999, 3.0), (2_000_000, 2.0), (4_000_000, 2.5),
@@ -135,9 +157,30 @@ def test_out_of_bounds_is_termination_not_truncation(backend):
     assert infos[0]["terminal_observation"][2] > 4.0
 
 
-def test_euler_observation_is_twelve_dimensional():
-    env = HoverVecEnv(n_envs=2, observation="euler", seed=0)
-    assert env.reset().shape == (2, 12)
+def test_euler_observation_is_scipys_xyz_angles_of_the_attitude():
+    from scipy.spatial.transform import Rotation
+
+    env = HoverVecEnv(n_envs=64, observation="euler", wind=WindSchedule(speeds=[0.0]), seed=0)
+    assert env.reset().shape == (64, 12)
+    rng = np.random.default_rng(1)
+    obs = None
+    for _ in range(30):  # random actions tumble the vehicles into varied attitudes
+        obs, _, dones, _ = env.step(rng.uniform(-1, 1, size=(64, 4)).astype(np.float32))
+    alive = ~dones
+    expected = Rotation.from_quat(env.sim.q[alive]).as_euler("xyz")
+    assert np.abs(expected).max() > 0.5  # the check covers large angles, not only near-level flight
+    np.testing.assert_allclose(obs[alive, 6:9], expected, atol=1e-5)
+    np.testing.assert_allclose(obs[alive, 9:12], env.sim.w[alive], rtol=1e-6)
+
+
+def test_time_limit_terminate_ends_the_episode_as_a_termination_not_a_crash():
+    env = HoverVecEnv(n_envs=2, wind=WindSchedule(speeds=[0.0]), seed=1, episode_seconds=0.2, time_limit="terminate")
+    env.reset()
+    for _ in range(20):
+        _, _, dones, infos = env.step(hover_action(env))
+    assert dones.all()
+    assert all(info["TimeLimit.truncated"] is False and info["crashed"] is False for info in infos)
+    assert all(info["episode"]["l"] == 20 for info in infos)
 
 
 def test_same_seed_same_starts():

@@ -31,7 +31,7 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int) ->
         n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
-        observation=env_cfg.observation, seed=seed)
+        observation=env_cfg.observation, time_limit=env_cfg.time_limit, seed=seed)
 
 
 def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:
@@ -52,7 +52,7 @@ def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:
             returns[i] += rewards[i]
             if dones[i]:
                 alive[i] = False
-                crashed[i] = not infos[i]["TimeLimit.truncated"]
+                crashed[i] = infos[i]["crashed"]
         if not alive.any():
             break
     return {"positions": positions, "returns": returns, "crashed": crashed}

@@ -7,27 +7,75 @@
   rates; or, with ``observation="euler"``, 12-D with roll/pitch/yaw as in the paper's state list.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode.
-* Reward: ``HoverReward`` (Eqs. 3-4). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100,
-  |w_i| > 100). The time limit is a truncation, reported per env with that env's own terminal
-  observation, so SB3 bootstraps each env from its own last state.
+* Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
+  RotorPy's gym env). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100).
+  ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
+  own terminal observation, so SB3 bootstraps each env from its own last state; ``"terminate"`` ends
+  it as a termination (no bootstrap), as RotorPy's gym env before 3.0 did.
 * Wind: world-frame air velocity from ``WindSchedule`` at the global timestep (steps x N); not observed.
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Any, Sequence
 
 import numpy as np
 from gymnasium import spaces
-from scipy.spatial.transform import Rotation
+import numba
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sweep.envs.backends import make_backend
-from sweep.envs.reward import HoverReward
+from sweep.envs.reward import HoverReward, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 
 OBSERVATIONS = ("quaternion", "euler")
+TIME_LIMITS = ("truncate", "terminate")
+SAFE_SPEED, SAFE_RATE = 100.0, 100.0  # m/s, rad/s: RotorPy's safety_exit bounds
+
+
+@numba.njit(cache=True)
+def quat_to_euler_xyz(q, out):
+    """Roll, pitch, yaw of a scalar-last quaternion: extrinsic x-y-z, i.e. scipy's ``as_euler("xyz")``
+    (R = Rz(yaw) Ry(pitch) Rx(roll); roll = atan2(R21, R22), pitch = -asin(R20), yaw = atan2(R10, R00))."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    n2 = x * x + y * y + z * z + w * w
+    r20 = 2.0 * (x * z - w * y) / n2
+    out[0] = math.atan2(2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    out[1] = -math.asin(min(1.0, max(-1.0, r20)))
+    out[2] = math.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
+
+
+@numba.njit(cache=True)
+def task_outcome(x, v, q, w, actions, t_idx, episode_steps, world_bound, terminate_at_limit, euler,
+                 w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward,
+                 obs, rewards, crashed, terminated, truncated):
+    """After the physics step: advance each episode clock, write observation, reward and the
+    crashed (left the bounds) / terminated / truncated flags of every vehicle (in place)."""
+    for i in range(x.shape[0]):
+        t_idx[i] += 1
+        out = False
+        for a in range(3):
+            out = out or abs(x[i, a]) > world_bound or abs(v[i, a]) > SAFE_SPEED or abs(w[i, a]) > SAFE_RATE
+        rewards[i] = step_reward(x[i], v[i], actions[i], out, w_p, w_v, w_a, alive_bonus, replace_crash,
+                                 crash_reward)
+        at_limit = t_idx[i] >= episode_steps and not out
+        crashed[i] = out
+        terminated[i] = out or (at_limit and terminate_at_limit)
+        truncated[i] = at_limit and not terminate_at_limit
+        for a in range(3):
+            obs[i, a] = x[i, a]
+            obs[i, 3 + a] = v[i, a]
+        if euler:
+            quat_to_euler_xyz(q[i], obs[i, 6:9])
+            for a in range(3):
+                obs[i, 9 + a] = w[i, a]
+        else:
+            for a in range(4):
+                obs[i, 6 + a] = q[i, a]
+            for a in range(3):
+                obs[i, 10 + a] = w[i, a]
 
 
 class HoverVecEnv(VecEnv):
@@ -43,10 +91,14 @@ class HoverVecEnv(VecEnv):
         world_bound: float = 4.0,
         motor_time_constant: float | None = 0.05,
         observation: str = "quaternion",
+        time_limit: str = "truncate",
         seed: int | None = None,
     ) -> None:
         if observation not in OBSERVATIONS:
             raise ValueError(f"env.observation={observation!r}; allowed: {list(OBSERVATIONS)}")
+        if time_limit not in TIME_LIMITS:
+            raise ValueError(f"env.time_limit={time_limit!r}; allowed: {list(TIME_LIMITS)}")
+        self.time_limit = time_limit
         self.params = crazyflie_params(motor_time_constant)
         self.dt = 1.0 / float(sim_rate)
         self.episode_steps = int(round(episode_seconds * sim_rate))
@@ -74,6 +126,24 @@ class HoverVecEnv(VecEnv):
         self._rng = np.random.default_rng(seed)
         self._wind_speed: float | None = None
         self._wind_array = np.zeros((n_envs, 3))
+        # outputs of task_outcome, reused every step
+        self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
+        self._rewards = np.zeros(n_envs, dtype=np.float32)
+        self._crashed = np.zeros(n_envs, dtype=np.bool_)
+        self._terminated = np.zeros(n_envs, dtype=np.bool_)
+        self._truncated = np.zeros(n_envs, dtype=np.bool_)
+        self._task_args = (self.episode_steps, self.world_bound, time_limit == "terminate",
+                           observation == "euler", *self.reward_fn.kernel_args)
+
+    @property
+    def kernel_args(self) -> tuple:
+        """What a compiled loop needs to step this env itself: the fast backend's state and physics
+        constants, then ``task_outcome``'s (see ``sweep.agents.rollout``)."""
+        s = self.sim
+        if not hasattr(s, "kernel_args"):
+            raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
+        return (s.x, s.v, s.q, s.w, s.rotor_speeds, *s.kernel_args, self.t_idx, self.ep_return, *self._task_args,
+                self._rewards, self._crashed, self._terminated, self._truncated)
 
     # ---- task pieces -------------------------------------------------------------------------
     def actions_to_rotor_speeds(self, actions: np.ndarray) -> np.ndarray:
@@ -102,20 +172,15 @@ class HoverVecEnv(VecEnv):
         self.ep_start_time[idx] = time.time()
 
     def _obs(self) -> np.ndarray:
+        """Observations of the vehicles' current states (after a reset)."""
         s = self.sim
         if self.observation == "quaternion":
             att = s.q
         else:
-            att = Rotation.from_quat(s.q).as_euler("xyz")
+            att = np.zeros((self.num_envs, 3))
+            for i in range(self.num_envs):
+                quat_to_euler_xyz(s.q[i], att[i])
         return np.concatenate([s.x, s.v, att, s.w], axis=1).astype(np.float32)
-
-    def _out_of_bounds(self) -> np.ndarray:
-        s = self.sim
-        return (
-            np.any(np.abs(s.x) > self.world_bound, axis=1)
-            | np.any(np.abs(s.v) > 100.0, axis=1)
-            | np.any(np.abs(s.w) > 100.0, axis=1)
-        )
 
     # ---- checkpoints ----------------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
@@ -142,31 +207,31 @@ class HoverVecEnv(VecEnv):
         actions = np.clip(self._actions, -1.0, 1.0)
         self.sim.step(self.actions_to_rotor_speeds(actions), self._wind_now())
         self.global_step += self.num_envs
-        self.t_idx += 1
-
-        obs = self._obs()
-        terminated = self._out_of_bounds()
-        rewards = self.reward_fn(self.sim.x, self.sim.v, actions)
-        if self.reward_fn.crash_penalty:
-            rewards = rewards - self.reward_fn.crash_penalty * terminated
-        rewards = rewards.astype(np.float32)
+        s = self.sim
+        task_outcome(s.x, s.v, s.q, s.w, actions, self.t_idx, *self._task_args,
+                     self._obs_buf, self._rewards, self._crashed, self._terminated, self._truncated)
+        obs, rewards = self._obs_buf.copy(), self._rewards.copy()
         self.ep_return += rewards
-        truncated = (self.t_idx >= self.episode_steps) & ~terminated
-        dones = terminated | truncated
+        dones = self._terminated | self._truncated
+        return obs, rewards, dones, self.end_episodes(obs, dones)
 
+    def end_episodes(self, obs: np.ndarray, dones: np.ndarray) -> list[dict[str, Any]]:
+        """SB3's infos of one step; every vehicle whose episode ended (``dones``) is reset and its row of
+        ``obs`` replaced by its new start, the last observation moving to ``terminal_observation``."""
         infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
         if not dones.any():
-            return obs, rewards, dones, infos
+            return infos
         done_idx = np.flatnonzero(dones)
         now = time.time()
         for i in done_idx:
             infos[i]["terminal_observation"] = obs[i].copy()
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i])
+            infos[i]["TimeLimit.truncated"] = bool(self._truncated[i])
+            infos[i]["crashed"] = bool(self._crashed[i])
             infos[i]["episode"] = {"r": float(self.ep_return[i]), "l": int(self.t_idx[i]),
                                    "t": round(now - self.ep_start_time[i], 6)}
         self._reset_envs(done_idx)
         obs[done_idx] = self._obs()[done_idx]
-        return obs, rewards, dones, infos
+        return infos
 
     def close(self) -> None:
         pass

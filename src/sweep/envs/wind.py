@@ -37,6 +37,12 @@ class WindSchedule:
         """World-frame wind velocity (m/s), shape (3,)."""
         return self.speed_at(global_step) * self._unit
 
+    def velocities(self, global_steps: np.ndarray) -> np.ndarray:
+        """``velocity_at`` for many global timesteps at once: (T,) -> (T, 3)."""
+        segment = np.asarray(global_steps, dtype=np.int64) // int(self.segment_steps)
+        speeds = np.asarray(self.speeds)[segment % len(self.speeds)]
+        return speeds[:, None] * self._unit
+
     @classmethod
     def constant(cls, speed: float, direction: Sequence[float] = (1.0, 0.0, 0.0)) -> "WindSchedule":
         return cls(speeds=[speed], segment_steps=1 << 62, direction=direction, name=f"constant{speed:g}")

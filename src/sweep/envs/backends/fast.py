@@ -290,6 +290,13 @@ class FastBackend(Backend):
                                c["k_flap"], 1.0 / c["tau_m"]])
         self._s = np.empty((self.n, 13 + c["rotor_geometry"].shape[0]))
 
+    @property
+    def kernel_args(self) -> tuple:
+        """``_step_loop``'s arguments after (x, v, q, w, rotor_speeds, cmd, wind)."""
+        c = self._c
+        return (self.dt, c["rotor_geometry"], c["rotor_dir"], c["inertia"], c["inv_inertia"], c["c_d"], self._scal,
+                c["speed_min"], c["speed_max"])
+
     def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
         c = self._c
         cmd = np.asarray(cmd_rotor_speeds, dtype=np.float64)
