@@ -4,33 +4,34 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from torch import nn
 
 from conftest import compose_cfg
-from sweep.agents import build_ppo, build_remedies
+from sweep.agents import build_learner, build_remedies
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.plasticity.dormant import dormant_ratio, dormant_scores, hidden_activations, srank
+from sweep.plasticity.diagnostics import PlasticityDiagnostics
+from sweep.plasticity.dormant import dormant_mask, dormant_ratio, dormant_scores, srank
 from sweep.plasticity.l2 import L2Regularization
 from sweep.plasticity.recom import Recom, recom_lr, retrospective_cost
+
+LEARNERS = ["sb3", "jax"]
+
+
+def learner(name: str, overrides=(), n_envs: int = 1, seed: int = 0, **env_kwargs):
+    cfg = compose_cfg([f"agent.learner={name}", *overrides])
+    env = HoverVecEnv(n_envs=n_envs, seed=seed, **env_kwargs)
+    return cfg, build_learner(cfg.agent, env, seed)
 
 # ---- dormant units (Sokar et al. 2023) ----------------------------------------------------------------
 
 
-def hand_built_net() -> nn.Sequential:
+def test_dormant_ratio_on_hand_built_layer():
     """4 inputs -> 4 tanh units: unit 0 has zero weights and bias (dormant), unit 3 is scaled up."""
-    lin = nn.Linear(4, 4)
-    with torch.no_grad():
-        lin.weight.copy_(torch.tensor([[0.0, 0, 0, 0], [0.1, 0, 0, 0], [0, 0.1, 0, 0], [0, 0, 1.0, 0]]))
-        lin.bias.zero_()
-    return nn.Sequential(lin, nn.Tanh())
-
-
-def test_dormant_ratio_on_hand_built_network():
-    x = torch.tensor([[1.0, 1.0, 1.0, 0.0], [-1.0, -1.0, -1.0, 0.0]])
-    (h,) = hidden_activations(hand_built_net(), x)
+    w = np.array([[0.0, 0, 0, 0], [0.1, 0, 0, 0], [0, 0.1, 0, 0], [0, 0, 1.0, 0]])
+    x = np.array([[1.0, 1.0, 1.0, 0.0], [-1.0, -1.0, -1.0, 0.0]])
+    h = np.tanh(x @ w.T)
     # |h| means: 0, tanh(.1), tanh(.1), tanh(1); scores relative to their average
-    m = torch.tensor([0.0, np.tanh(0.1), np.tanh(0.1), np.tanh(1.0)], dtype=torch.float32)
-    torch.testing.assert_close(dormant_scores(h), m / m.mean())
+    m = np.array([0.0, np.tanh(0.1), np.tanh(0.1), np.tanh(1.0)])
+    np.testing.assert_allclose(dormant_scores(h), m / m.mean())
     overall, per_layer = dormant_ratio([h], tau=0.025)
     assert overall == 0.25 and per_layer == [0.25]  # only the zero unit
     overall, _ = dormant_ratio([h], tau=0.5)        # tanh(.1)/mean = 0.33 <= 0.5: two more
@@ -38,26 +39,64 @@ def test_dormant_ratio_on_hand_built_network():
 
 
 def test_scaled_up_unit_is_not_dormant_and_all_zero_layer_is_dormant():
-    h = torch.tensor([[0.0, 10.0], [0.0, -10.0]])
+    h = np.array([[0.0, 10.0], [0.0, -10.0]])
     assert dormant_ratio([h], 0.025)[0] == 0.5
-    assert dormant_ratio([torch.zeros(5, 3)], 0.025)[0] == 1.0
-    assert dormant_ratio([h, torch.ones(2, 2)], 0.025) == (0.25, [0.5, 0.0])
+    assert dormant_ratio([np.zeros((5, 3))], 0.025)[0] == 1.0
+    assert dormant_ratio([h, np.ones((2, 2))], 0.025) == (0.25, [0.5, 0.0])
 
 
-def test_fresh_policy_has_no_dormant_units():
-    env = HoverVecEnv(n_envs=1, seed=0)
-    model = build_ppo(compose_cfg().agent, env, seed=0)
-    obs = torch.as_tensor(np.stack([env.reset()[0] for _ in range(256)]) + np.random.default_rng(0).normal(size=(256, 13)),
-                          dtype=torch.float32)
-    layers = hidden_activations(model.policy.mlp_extractor.policy_net, obs)
-    assert len(layers) == 2 and dormant_ratio(layers, 0.025)[0] == 0.0
+@pytest.mark.parametrize("name", LEARNERS)
+def test_diagnostics_report_exactly_the_units_made_dormant(name):
+    """Silence chosen units of a trained policy (zero incoming weights and bias: tanh(0) = 0 for every input):
+    the dormant mask is exactly those units, the ratios count exactly them, and the value network is untouched."""
+    cfg, model = learner(name, ["agent.ppo.n_steps=512"], n_envs=4, wind=WindSchedule([2.0]))
+    model.learn(4096)  # a trained network, not a fresh one
+    silenced = {0: [3, 17, 40], 1: [0, 5, 6, 63]}
+    params = model.parameter_arrays()
+    for layer, units in silenced.items():
+        params[f"mlp_extractor.policy_net.{2 * layer}.weight"][units] = 0.0
+        params[f"mlp_extractor.policy_net.{2 * layer}.bias"][units] = 0.0
+    model.load_learner_state(_with_params(model, params), optimizer=False)
+    diagnostics = PlasticityDiagnostics(**cfg.plasticity)
+    diagnostics.init_callback(model)
+    obs = diagnostics._recent_batch()[0]
+    pi_layers, _ = model.hidden_activations(obs)
+    for layer, units in silenced.items():
+        assert np.flatnonzero(dormant_mask(pi_layers[layer], 0.025)).tolist() == units
+    stats = diagnostics.measure()
+    assert stats["dormant_ratio_layer0"] == 3 / 64 and stats["dormant_ratio_layer1"] == 4 / 64
+    assert stats["dormant_ratio"] == 7 / 128 and stats["value_dormant_ratio"] == 0.0
+
+
+def _with_params(model, params: dict) -> dict:
+    state = model.learner_state()
+    if "params" in state:  # JaxPPO
+        return {**state, "params": params}
+    import torch
+
+    return {**state, "policy": {k: torch.as_tensor(v) for k, v in params.items()}}
+
+
+def test_diagnostics_agree_between_learners_on_the_same_weights_and_batch():
+    (cfg, sb3), (_, jx) = learner("sb3", ["agent.ppo.n_steps=256"], n_envs=4), learner("jax", ["agent.ppo.n_steps=256"],
+                                                                                          n_envs=4)
+    sb3.learn(1024)
+    jx.load_learner_state(_with_params(jx, sb3.parameter_arrays()), optimizer=False)
+    jx.rollout_buffer = sb3.rollout_buffer
+    measured = []
+    for model in (sb3, jx):
+        diagnostics = PlasticityDiagnostics(**cfg.plasticity)
+        diagnostics.init_callback(model)
+        measured.append(diagnostics.measure())
+    assert measured[0].keys() == measured[1].keys()
+    for key in measured[0]:
+        assert measured[1][key] == pytest.approx(measured[0][key], rel=1e-4, abs=1e-6), key
 
 
 def test_srank():
-    assert srank(torch.eye(8)) == 8
-    assert srank(torch.ones(10, 4)) == 1
-    features = torch.diag(torch.tensor([1.0, 1.0, 1e-6, 1e-6]))
-    assert srank(features, delta=0.01) == 2
+    assert srank(np.eye(8)) == 8
+    assert srank(np.ones((10, 4))) == 1
+    assert srank(np.diag([1.0, 1.0, 1e-6, 1e-6]), delta=0.01) == 2
 
 
 # ---- RECOM (Eqs. 5-8) -----------------------------------------------------------------------------
@@ -123,28 +162,40 @@ def test_recom_shifted_window_and_clipping():
     assert recom.logger.name_to_value["recom/cost_prev"] == 16.0
 
 
-def test_recom_learning_rate_reaches_the_optimizer():
-    cfg = compose_cfg(["agent=recom_l2", "agent.ppo.n_steps=256", "agent.ppo.n_epochs=1",
+@pytest.mark.parametrize("name", LEARNERS)
+def test_recom_learning_rate_reaches_the_optimizer(name):
+    cfg = compose_cfg([f"agent.learner={name}", "agent=recom_l2", "agent.ppo.n_steps=256", "agent.ppo.n_epochs=1",
                        "agent.recom.interval=256", "agent.recom.gain=1e-3"])
     env = HoverVecEnv(n_envs=2, seed=0, episode_seconds=0.5, wind=WindSchedule(speeds=[0.0]))
-    model = build_ppo(cfg.agent, env, seed=0)
+    model = build_learner(cfg.agent, env, seed=0)
     remedies = build_remedies(cfg.agent)
     recom = remedies[-1]
     seen = []
-    original_train = model.train
+    if name == "sb3":  # the LR of both param groups of the torch optimizer during the update
+        original_train = model.train
 
-    def train_and_record():
-        original_train()
-        seen.append((recom.schedule.value, model.policy.optimizer.param_groups[0]["lr"],
-                     model.policy.optimizer.param_groups[1]["lr"], model.logger.name_to_value["train/learning_rate"]))
+        def train_and_record():
+            original_train()
+            groups = model.policy.optimizer.param_groups
+            seen.append((recom.schedule.value, [g["lr"] for g in groups], model.logger.name_to_value["train/learning_rate"]))
+        model.train = train_and_record
+    else:  # the LR argument of the jitted update
+        original_train, original_update = model.train, None
 
-    model.train = train_and_record
+        def train_and_record():
+            nonlocal original_update
+            original_update = original_update or model._update
+            used = []
+            model._update = lambda *args: used.append(args[4]) or original_update(*args)
+            original_train()
+            seen.append((recom.schedule.value, used, model.logger.name_to_value["train/learning_rate"]))
+        model.train = train_and_record
     model.learn(256 * 2 * 4, callback=remedies)
     lrs = [s[0] for s in seen]
     assert len(set(lrs)) > 1, "RECOM never changed the learning rate"
-    for target, group0, group1, logged in seen:
-        assert group0 == group1 == logged == pytest.approx(target)
-    assert model.policy.optimizer.param_groups[0]["weight_decay"] == cfg.agent.l2.coef
+    for target, used, logged in seen:
+        assert used and all(lr == pytest.approx(target) for lr in used) and logged == pytest.approx(target)
+    assert len(model.l2_decayed) == 12  # RECOM + L2: L2 is on too, on every parameter but log_std
 
 
 # ---- L2 ----------------------------------------------------------------------------------------
@@ -152,9 +203,9 @@ def test_recom_learning_rate_reaches_the_optimizer():
 
 def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term():
     env = HoverVecEnv(n_envs=1, seed=0)
-    ppo = build_ppo(compose_cfg(["agent=ppo"]).agent, env, seed=0)
+    ppo = build_learner(compose_cfg(["agent=ppo"]).agent, env, seed=0)
     l2_cfg = compose_cfg(["agent=l2"]).agent
-    l2 = build_ppo(l2_cfg, env, seed=0)
+    l2 = build_learner(l2_cfg, env, seed=0)
     (remedy,) = build_remedies(l2_cfg)
     remedy.init_callback(l2)
     base = ppo.policy.optimizer
@@ -166,16 +217,18 @@ def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term():
     assert base.param_groups[0]["eps"] == 1e-5
     assert base.param_groups[0]["weight_decay"] == 0
     decayed, plain = new.param_groups
-    assert decayed["weight_decay"] == 1e-3 and plain["weight_decay"] == 0.0
+    assert decayed["weight_decay"] == l2_cfg.l2.coef and plain["weight_decay"] == 0.0
     names = {id(p): n for n, p in l2.policy.named_parameters()}
     assert {names[id(p)] for p in plain["params"]} == {"log_std"}
     assert sum(p.numel() for g in new.param_groups for p in g["params"]) == sum(p.numel() for p in l2.policy.parameters())
 
 
-def test_l2_scope_is_configurable():
-    env = HoverVecEnv(n_envs=1, seed=0)
-    model = build_ppo(compose_cfg().agent, env, seed=0)
+@pytest.mark.parametrize("name", LEARNERS)
+def test_l2_scope_is_configurable(name):
+    _, model = learner(name)
     L2Regularization(coef=0.1, params=["policy"], biases=False).init_callback(model)
-    names = {id(p): n for n, p in model.policy.named_parameters()}
-    decayed = {names[id(p)] for p in model.policy.optimizer.param_groups[0]["params"]}
-    assert decayed == {"mlp_extractor.policy_net.0.weight", "mlp_extractor.policy_net.2.weight", "action_net.weight"}
+    assert model.l2_decayed == ["action_net.weight", "mlp_extractor.policy_net.0.weight",
+                                "mlp_extractor.policy_net.2.weight"]
+    L2Regularization(coef=0.1, params=["value", "log_std"], biases=True).init_callback(model)
+    assert model.l2_decayed == sorted(["log_std", "value_net.weight", "value_net.bias",
+                                       *(f"mlp_extractor.value_net.{i}.{p}" for i in (0, 2) for p in ("weight", "bias"))])

@@ -75,7 +75,7 @@ class Checkpointer(BaseCallback):
         model._n_updates = state["n_updates"]
         model._last_obs = state["last_obs"]
         model._last_episode_starts = state["last_episode_starts"]
-        model.policy.load_state_dict(state["policy"])
+        model.load_learner_state(state["learner"], optimizer=False)
         model.ep_info_buffer = deque(state["ep_info_buffer"], maxlen=model._stats_window_size)
         model.ep_success_buffer = deque(state["ep_success_buffer"], maxlen=model._stats_window_size)
 
@@ -83,7 +83,7 @@ class Checkpointer(BaseCallback):
         if self.resume is None:
             return
         state = self.resume
-        self.model.policy.optimizer.load_state_dict(state["optimizer"])
+        self.model.load_learner_state(state["learner"])  # after the remedies set up the optimizer
         for cb, cb_state in zip(self.others, state["callbacks"]):
             cb.load_state_dict(cb_state)
         self.training_env.set_state(state["env"])
@@ -106,8 +106,7 @@ class Checkpointer(BaseCallback):
         state = {
             "num_timesteps": model.num_timesteps,
             "n_updates": model._n_updates,
-            "policy": model.policy.state_dict(),
-            "optimizer": model.policy.optimizer.state_dict(),
+            "learner": model.learner_state(),
             "last_obs": model._last_obs,
             "last_episode_starts": model._last_episode_starts,
             "ep_info_buffer": list(model.ep_info_buffer),

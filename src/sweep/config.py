@@ -29,6 +29,12 @@ def _backend_names() -> list[str]:
     return list(BACKENDS)
 
 
+def _learner_names() -> list[str]:
+    from sweep.agents import LEARNERS
+
+    return list(LEARNERS)
+
+
 def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
@@ -84,10 +90,12 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("env.reward.w_v", non_negative, "a number >= 0"),
     ("env.reward.w_a", non_negative, "a number >= 0"),
     ("env.reward.alive_bonus", non_negative, "a number >= 0"),
-    ("env.reward.crash_penalty", non_negative, "a number >= 0"),
+    ("env.reward.crash_reward", lambda v: v is None or _is_num(v), "a number or null (no replacement)"),
+    ("env.time_limit", one_of("truncate", "terminate"), "truncate|terminate"),
     ("wind.speeds", speeds_list, "a non-empty list of speeds >= 0 (m/s)"),
     ("wind.segment_steps", positive_int, "an integer > 0"),
     ("wind.direction", vector3, "a non-zero 3-vector [x, y, z]"),
+    ("agent.learner", lambda v: v in _learner_names(), "one of " + "|".join(_learner_names())),
     ("agent.ppo.learning_rate", positive, "a number > 0"),
     ("agent.ppo.n_steps", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
     ("agent.ppo.batch_size", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
@@ -142,6 +150,14 @@ def validate(cfg: DictConfig) -> None:
     if lr_min is not _MISSING and lr_max is not _MISSING and lr_min > lr_max:
         raise ConfigError(f"agent.recom.lr_min={lr_min!r} > agent.recom.lr_max={lr_max!r}: must be lr_min <= lr_max")
     rollout = _get(cfg, "agent.ppo.n_steps") * _get(cfg, "env.n_envs")
-    if _get(cfg, "agent.ppo.batch_size") > rollout:
-        raise ConfigError(f"agent.ppo.batch_size={_get(cfg, 'agent.ppo.batch_size')!r}: must be <= the rollout size "
+    batch = _get(cfg, "agent.ppo.batch_size")
+    if batch > rollout:
+        raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be <= the rollout size "
                           f"agent.ppo.n_steps x env.n_envs = {rollout}")
+    if _get(cfg, "agent.learner") == "jax":
+        if rollout % batch:
+            raise ConfigError(f"agent.ppo.batch_size={batch!r}: with agent.learner=jax must divide the rollout size "
+                              f"agent.ppo.n_steps x env.n_envs = {rollout}")
+        if _get(cfg, "env.backend") != "fast":
+            raise ConfigError(f"env.backend={_get(cfg, 'env.backend')!r}: agent.learner=jax steps the env in its compiled "
+                              f"rollout, which needs env.backend=fast")

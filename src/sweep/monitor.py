@@ -5,7 +5,7 @@ import logging
 import math
 import time
 
-import torch
+import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 log = logging.getLogger("sweep")
@@ -64,8 +64,8 @@ class NonFiniteGuard(BaseCallback):
         loss = self.model.logger.name_to_value.get("train/loss")
         if loss is not None and not math.isfinite(loss):
             raise NonFiniteError(f"train/loss={loss} after the update at {self.num_timesteps} timesteps")
-        for name, p in self.model.policy.named_parameters():
-            if not torch.isfinite(p).all():
+        for name, p in self.model.parameter_arrays().items():
+            if not np.isfinite(p).all():
                 raise NonFiniteError(f"parameter {name} is not finite after the update at {self.num_timesteps} timesteps")
 
 

@@ -19,7 +19,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.utils import set_random_seed
 
-from sweep.agents import build_ppo, build_remedies
+from sweep.agents import build_learner, build_remedies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, validate
 from sweep.envs import WindSchedule
@@ -34,7 +34,7 @@ log = logging.getLogger("sweep")
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
     tags = {"agent": cfg.agent.name, "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
-            "sweep": "single", "job": "0"}
+            "learner": cfg.agent.learner, "sweep": "single", "job": "0"}
     if HydraConfig.initialized():
         hc = HydraConfig.get()
         if hc.mode == RunMode.MULTIRUN:
@@ -88,7 +88,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     wind = WindSchedule(speeds=list(cfg.wind.speeds), segment_steps=cfg.wind.segment_steps,
                         direction=list(cfg.wind.direction), name=cfg.wind.name)
     env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed)
-    model = build_ppo(cfg.agent, env, cfg.seed)
+    model = build_learner(cfg.agent, env, cfg.seed)
     callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()]
     if cfg.eval.every_timesteps > 0:
         callbacks.append(PeriodicEvaluation(cfg, cfg.eval.every_timesteps))

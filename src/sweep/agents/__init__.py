@@ -1,4 +1,40 @@
-"""Building the PPO agent and its remedies from the ``agent`` config group."""
-from sweep.agents.ppo import build_ppo, build_remedies
+"""The learner (``agent.learner``: ``sb3`` = SB3 PPO, the reference; ``jax`` = the compiled equivalent) and
+the agent's remedies, built from the ``agent`` config group.
 
-__all__ = ["build_ppo", "build_remedies"]
+Both learners are SB3 ``OnPolicyAlgorithm``s (same ``learn()``, logger and callbacks) and offer the same
+few extra methods: ``from_config``, ``use_l2``, ``parameter_arrays``, ``hidden_activations``, ``loss_grad_norm``,
+``learner_state`` / ``load_learner_state``.
+"""
+from __future__ import annotations
+
+import importlib
+
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+LEARNERS = {"sb3": "sweep.agents.sb3:SB3PPO", "jax": "sweep.agents.jax_ppo:JaxPPO"}
+
+
+def build_learner(agent: DictConfig, env: VecEnv, seed: int) -> BaseAlgorithm:
+    """PPO with ``agent.ppo`` hyperparameters and ``agent.policy`` networks on the chosen learner."""
+    module, cls = LEARNERS[agent.learner].split(":")
+    learner = getattr(importlib.import_module(module), cls)
+    ppo = OmegaConf.to_container(agent.ppo, resolve=True)
+    p = agent.policy
+    return learner.from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed)
+
+
+def build_remedies(agent: DictConfig) -> list[BaseCallback]:
+    """Instantiate every enabled ``agent.<key>`` that has a ``_target_`` (in config order)."""
+    remedies = []
+    for spec in agent.values():
+        if isinstance(spec, DictConfig) and "_target_" in spec and spec.get("enabled", True):
+            kwargs = {k: v for k, v in spec.items() if k != "enabled"}
+            remedies.append(instantiate(OmegaConf.create(kwargs)))
+    return remedies
+
+
+__all__ = ["LEARNERS", "build_learner", "build_remedies"]

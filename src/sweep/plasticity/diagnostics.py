@@ -13,14 +13,16 @@ observations of that rollout:
 """
 from __future__ import annotations
 
-import torch
-import torch.nn.functional as F
+import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sweep.plasticity.dormant import dormant_ratio, hidden_activations, saturated_ratio, srank
+from sweep.plasticity.dormant import dormant_ratio, saturated_ratio, srank
 
 
 class PlasticityDiagnostics(BaseCallback):
+    """Reads the networks through the learner (``hidden_activations``, ``parameter_arrays``,
+    ``loss_grad_norm``), so the statistics are the same code for every learner."""
+
     def __init__(self, every_rollouts: int = 1, tau: float = 0.025, batch_size: int = 1024,
                  saturation: float = 0.99, srank_delta: float = 0.01) -> None:
         super().__init__()
@@ -51,38 +53,21 @@ class PlasticityDiagnostics(BaseCallback):
             flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
         n = buf.buffer_size * buf.n_envs
         idx = slice(max(0, n - self.batch_size), n)
-        obs, actions, old_log_prob, advantages, returns = (
-            flat(buf.observations)[idx], flat(buf.actions)[idx], flat(buf.log_probs)[idx],
-            flat(buf.advantages)[idx], flat(buf.returns)[idx])
-        t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
-        return t(obs), t(actions), t(old_log_prob).flatten(), t(advantages).flatten(), t(returns).flatten()
+        return (flat(buf.observations)[idx], flat(buf.actions)[idx], flat(buf.advantages)[idx].ravel(),
+                flat(buf.returns)[idx].ravel())
 
     def measure(self) -> dict[str, float]:
-        policy = self.model.policy
-        obs, actions, _, advantages, returns = self._recent_batch()
+        model = self.model
+        obs, actions, advantages, returns = self._recent_batch()
+        pi_layers, vf_layers = model.hidden_activations(obs)
         stats: dict[str, float] = {}
-        with torch.no_grad():
-            features = policy.extract_features(obs, policy.pi_features_extractor)
-            pi_layers = hidden_activations(policy.mlp_extractor.policy_net, features)
-            vf_layers = hidden_activations(policy.mlp_extractor.value_net, features)
-            stats["dormant_ratio"], per_layer = dormant_ratio(pi_layers, self.tau)
-            for i, r in enumerate(per_layer):
-                stats[f"dormant_ratio_layer{i}"] = r
-            stats["value_dormant_ratio"], _ = dormant_ratio(vf_layers, self.tau)
-            stats["saturated_ratio"] = saturated_ratio(pi_layers, self.saturation)
-            stats["srank"] = float(srank(pi_layers[-1], self.srank_delta))
-            stats["weight_norm"] = float(torch.sqrt(sum((p ** 2).sum() for p in policy.parameters())))
-        stats["grad_norm"] = self._loss_grad_norm(obs, actions, advantages, returns)
+        stats["dormant_ratio"], per_layer = dormant_ratio(pi_layers, self.tau)
+        for i, r in enumerate(per_layer):
+            stats[f"dormant_ratio_layer{i}"] = r
+        stats["value_dormant_ratio"], _ = dormant_ratio(vf_layers, self.tau)
+        stats["saturated_ratio"] = saturated_ratio(pi_layers, self.saturation)
+        stats["srank"] = float(srank(pi_layers[-1], self.srank_delta))
+        stats["weight_norm"] = float(np.sqrt(sum(float((p.astype(np.float64) ** 2).sum())
+                                                 for p in model.parameter_arrays().values())))
+        stats["grad_norm"] = model.loss_grad_norm(obs, actions, advantages, returns)
         return stats
-
-    def _loss_grad_norm(self, obs, actions, advantages, returns) -> float:
-        """PPO loss at the rollout's own parameters (ratio = 1, so no clipping), as SB3 computes it."""
-        policy, model = self.model.policy, self.model
-        values, log_prob, entropy = policy.evaluate_actions(obs, actions)
-        if model.normalize_advantage and len(advantages) > 1:
-            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        ratio = torch.exp(log_prob - log_prob.detach())
-        loss = (-(advantages * ratio).mean() + model.vf_coef * F.mse_loss(returns, values.flatten())
-                - model.ent_coef * (entropy.mean() if entropy is not None else -log_prob.mean()))
-        grads = torch.autograd.grad(loss, [p for p in policy.parameters() if p.requires_grad], allow_unused=True)
-        return float(torch.sqrt(sum((g ** 2).sum() for g in grads if g is not None)))

@@ -39,15 +39,15 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "coupled",
 
 
 class L2Regularization(BaseCallback):
-    """Replaces SB3's optimizer with ``l2_optimizer`` when training starts."""
+    """Switches the learner's L2 on when training starts (SB3: ``l2_optimizer``; JAX: the same decay in
+    its optax chain, ``sweep.agents.jax_ppo``)."""
 
     def __init__(self, coef: float = 1e-3, mode: str = "coupled", params=("policy", "value"), biases: bool = True):
         super().__init__()
         self.coef, self.mode, self.params, self.biases = float(coef), mode, tuple(params), bool(biases)
 
     def _init_callback(self) -> None:
-        policy = self.model.policy
-        policy.optimizer = l2_optimizer(policy, self.coef, self.mode, self.params, self.biases)
+        self.model.use_l2(self.coef, self.mode, self.params, self.biases)
 
     def _on_step(self) -> bool:
         return True

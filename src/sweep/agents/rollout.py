@@ -1,0 +1,168 @@
+"""Compiled rollout for the JAX learner: SB3's ``collect_rollouts`` loop, for the hover env, in numba.
+
+One call of ``fly`` runs the policy in the env step after step, writing SB3's rollout buffer, until an
+episode ends or the rollout is full; the caller then does what needs Python (SB3's infos, resets,
+callbacks) and calls again. Per step and vehicle, exactly as SB3's ``OnPolicyAlgorithm.collect_rollouts``
+with ``ActorCriticPolicy`` (Gaussian, state-independent std):
+
+* value V(s) and action a = mu(s) + exp(log_std) * eps, eps ~ N(0, 1) drawn beforehand by the caller;
+  log pi(a|s) = sum_i -eps_i^2 / 2 - log_std_i - log sqrt(2 pi);
+* the env gets a clipped to [-1, 1]; the buffer keeps the unclipped a;
+* a truncated episode's reward gets + gamma V(terminal observation) (SB3's timeout bootstrap).
+
+The env step is the env's own compiled pieces: the fast backend's ``_step_loop`` (physics) and
+``task_outcome`` (observation, reward, termination), so the task is the one ``HoverVecEnv.step`` runs.
+``gae`` is SB3's ``RolloutBuffer.compute_returns_and_advantage``.
+
+The networks run here in float32 from weights laid out (in, out) per layer (``mlp``); the JAX
+learner re-exports them after every update.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from sweep.envs.backends.fast import _step_loop
+from sweep.envs.hover import task_outcome
+
+LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+@numba.njit(cache=True, fastmath=True)
+def mlp(x, weights, biases, relu, h_in, h_out, out):
+    """out = MLP(x) for one input row: hidden layers tanh (or ReLU), linear output. ``h_in``/``h_out`` are
+    scratch rows at least as wide as the widest layer."""
+    n_layers = len(weights)
+    for k in range(x.shape[0]):
+        h_in[k] = x[k]
+    for layer in range(n_layers):
+        w, b = weights[layer], biases[layer]
+        n_in, n_out = w.shape
+        dst = out if layer == n_layers - 1 else h_out
+        for j in range(n_out):
+            dst[j] = b[j]
+        for k in range(n_in):
+            xk = h_in[k]
+            for j in range(n_out):
+                dst[j] += xk * w[k, j]
+        if layer < n_layers - 1:
+            for j in range(n_out):
+                h_in[j] = max(h_out[j], 0.0) if relu else math.tanh(h_out[j])
+
+
+@numba.njit(cache=True)
+def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
+        pi_w, pi_b, vf_w, vf_b, log_std, relu, gamma,
+        buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
+        x, v, q, w, rotor_speeds, dt, geo, rdir, inertia, inv_inertia, c_d, scal, speed_min, speed_max,
+        t_idx, ep_return, episode_steps, world_bound, terminate_at_limit, euler,
+        w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, rewards, crashed, terminated, truncated):
+    """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
+
+    ``obs`` (N, D) is the observation before step t and is overwritten with the one after the last step
+    (the terminal one for vehicles whose episode ended: the caller resets them). ``wind`` (n_steps, 3) is
+    the wind of every step of the rollout, ``noise`` (n_steps, N, A) the Gaussian draws."""
+    n, n_act = obs.shape[0], noise.shape[2]
+    width = obs.shape[1]
+    for layer in range(len(pi_w)):
+        width = max(width, pi_w[layer].shape[1])
+    for layer in range(len(vf_w)):
+        width = max(width, vf_w[layer].shape[1])
+    h_in = np.empty(width, np.float32)
+    h_out = np.empty(width, np.float32)
+    mean = np.empty(n_act, np.float32)
+    value = np.empty(1, np.float32)
+    std = np.exp(log_std)
+    log_norm = 0.0
+    for a in range(n_act):
+        log_norm += log_std[a] + LOG_SQRT_2PI
+    cmd = np.empty((n, n_act))
+    clipped = np.empty((n, n_act), np.float32)
+    wind_now = np.empty((n, 3))
+    while t < n_steps:
+        for i in range(n):
+            mlp(obs[i], pi_w, pi_b, relu, h_in, h_out, mean)
+            mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+            log_prob = 0.0
+            for a in range(n_act):
+                eps = noise[t, i, a]
+                action = mean[a] + std[a] * eps
+                buf_actions[t, i, a] = action
+                c = min(max(action, np.float32(-1.0)), np.float32(1.0))
+                clipped[i, a] = c
+                cmd[i, a] = speed_min + (c + 1.0) * 0.5 * (speed_max - speed_min)
+                log_prob -= 0.5 * eps * eps
+            buf_log_probs[t, i] = log_prob - log_norm
+            buf_values[t, i] = value[0]
+            buf_starts[t, i] = episode_starts[i]
+            for k in range(obs.shape[1]):
+                buf_obs[t, i, k] = obs[i, k]
+            for k in range(3):
+                wind_now[i, k] = wind[t, k]
+        _step_loop(x, v, q, w, rotor_speeds, cmd, wind_now, dt, geo, rdir, inertia, inv_inertia, c_d, scal,
+                   speed_min, speed_max)
+        task_outcome(x, v, q, w, clipped, t_idx, episode_steps, world_bound, terminate_at_limit, euler,
+                     w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, obs, rewards, crashed,
+                     terminated, truncated)
+        any_done = False
+        for i in range(n):
+            ep_return[i] += rewards[i]
+            reward = rewards[i]
+            if truncated[i]:
+                mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+                reward += np.float32(gamma) * value[0]
+            buf_rewards[t, i] = reward
+            dones[i] = terminated[i] or truncated[i]
+            episode_starts[i] = dones[i]
+            any_done = any_done or dones[i]
+        t += 1
+        if any_done:
+            break
+    return t
+
+
+@numba.njit(cache=True)
+def values_of(obs, vf_w, vf_b, relu, out):
+    """V(obs) for every row of ``obs``."""
+    width = obs.shape[1]
+    for layer in range(len(vf_w)):
+        width = max(width, vf_w[layer].shape[1])
+    h_in = np.empty(width, np.float32)
+    h_out = np.empty(width, np.float32)
+    value = np.empty(1, np.float32)
+    for i in range(obs.shape[0]):
+        mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+        out[i] = value[0]
+
+
+@numba.njit(cache=True)
+def actions_of(obs, pi_w, pi_b, relu, out):
+    """The Gaussian's mean mu(obs) for every row of ``obs`` (the deterministic action, unclipped)."""
+    width = obs.shape[1]
+    for layer in range(len(pi_w)):
+        width = max(width, pi_w[layer].shape[1])
+    h_in = np.empty(width, np.float32)
+    h_out = np.empty(width, np.float32)
+    for i in range(obs.shape[0]):
+        mlp(obs[i], pi_w, pi_b, relu, h_in, h_out, out[i])
+
+
+@numba.njit(cache=True)
+def gae(rewards, values, episode_starts, last_values, last_dones, gamma, gae_lambda, advantages, returns):
+    """SB3's ``compute_returns_and_advantage``: GAE(lambda) advantages and TD(lambda) returns, (T, N) arrays."""
+    n_steps, n = rewards.shape
+    last_gae = np.zeros(n, np.float32)
+    for step in range(n_steps - 1, -1, -1):
+        for i in range(n):
+            if step == n_steps - 1:
+                non_terminal = np.float32(1.0) - np.float32(last_dones[i])
+                next_value = last_values[i]
+            else:
+                non_terminal = np.float32(1.0) - episode_starts[step + 1, i]
+                next_value = values[step + 1, i]
+            delta = rewards[step, i] + np.float32(gamma) * next_value * non_terminal - values[step, i]
+            last_gae[i] = delta + np.float32(gamma) * np.float32(gae_lambda) * non_terminal * last_gae[i]
+            advantages[step, i] = last_gae[i]
+            returns[step, i] = last_gae[i] + values[step, i]

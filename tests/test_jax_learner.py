@@ -1,0 +1,197 @@
+"""The JAX learner against SB3's PPO: same initial weights, same loss terms, gradients and update from the
+same rollout, the same rollout semantics (compiled rollout = the env stepped by SB3's loop), a model file
+SB3 loads. Learning curves over seeds: ``test_learning_curves_are_equivalent`` (slow) and docs/jax_learner.md.
+
+Tolerances: float32 arithmetic in a different order (XLA vs torch) gives ~1e-7 relative differences per
+operation. Measured after one full update (10 epochs x 32 minibatches of 64, 2,048 samples): weights within
+1.3e-6 (plain and coupled L2; value net, whose loss is ~1e4); logged losses within 4e-7 relative. With
+decoupled L2 (AdamW), 1e-5: torch shrinks theta by (1 - lr coef) = 1 - 3e-7 in float32, where the step is a
+few ulps of theta and its rounding depends on theta's last bits, so ulp-level differences of the Adam step
+flip roundings of the decay, 320 times (the same decay alone is bit-identical in torch and JAX). The bounds
+below are 5-10x those, far below what any semantic difference causes (an unnormalised advantage, a biased
+std, a clip of 1e-6 more or less, a missing L2 term all move weights by > 1e-4 in one update).
+"""
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.utils import configure_logger
+
+from conftest import compose_cfg
+from sweep.agents import build_learner, build_remedies
+from sweep.agents import rollout as compiled
+from sweep.agents.jax_ppo import JaxPPO, ppo_loss
+from sweep.envs import HoverVecEnv, WindSchedule
+from sweep.envs.reward import HoverReward
+
+WEIGHT_ATOL = {None: 1e-5, "coupled": 1e-5, "decoupled": 5e-5}
+STAT_RTOL = 5e-6  # loss terms; pg loss and approx KL (near 0 by construction) are compared to 1e-6 absolute
+
+
+def pair(overrides=(), n_envs=8, n_steps=256, seed=0):
+    """(sb3, jax) learners of the same config and seed, each on its own env with the same seed."""
+    models = []
+    for learner in ("sb3", "jax"):
+        cfg = compose_cfg([f"agent.learner={learner}", f"agent.ppo.n_steps={n_steps}", *overrides])
+        env = HoverVecEnv(n_envs=n_envs, seed=seed, wind=WindSchedule([3.0]))
+        model = build_learner(cfg.agent, env, seed)
+        for remedy in build_remedies(cfg.agent):
+            remedy.init_callback(model)
+        models.append(model)
+    return models
+
+
+def sb3_rollout_into_both(sb3, *jax_models) -> None:
+    """One rollout collected by SB3's own loop, copied into the JAX learners' buffers."""
+    _, callback = sb3._setup_learn(10**6, None)
+    sb3.collect_rollouts(sb3.env, callback, sb3.rollout_buffer, sb3.n_steps)
+    for model in jax_models:
+        model._setup_learn(10**6, None)
+        for key in ("observations", "actions", "rewards", "advantages", "returns", "episode_starts", "log_probs",
+                    "values"):
+            getattr(model.rollout_buffer, key)[...] = getattr(sb3.rollout_buffer, key)
+        model.rollout_buffer.full = True
+
+
+def test_initial_weights_are_sb3s_for_the_same_seed():
+    sb3, jx = pair(seed=7)
+    a, b = sb3.parameter_arrays(), jx.parameter_arrays()
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert not np.array_equal(a["action_net.weight"], pair(seed=8)[1].parameter_arrays()["action_net.weight"])
+
+
+def test_minibatch_loss_terms_and_gradients_match_sb3():
+    sb3, jx = pair()
+    sb3_rollout_into_both(sb3, jx)
+    data = next(sb3.rollout_buffer.get(64))  # SB3's first minibatch
+    values, log_prob, entropy = sb3.policy.evaluate_actions(data.observations, data.actions)  # SB3 PPO.train:
+    adv = (data.advantages - data.advantages.mean()) / (data.advantages.std() + 1e-8)
+    ratio = torch.exp(log_prob - data.old_log_prob)
+    pg = -torch.min(adv * ratio, adv * torch.clamp(ratio, 0.8, 1.2)).mean()
+    vf = torch.nn.functional.mse_loss(data.returns, values.flatten())
+    ent = -torch.mean(entropy)
+    loss = pg + 0.0 * ent + 0.5 * vf
+    sb3.policy.optimizer.zero_grad()
+    loss.backward()
+    torch_grads = {k: p.grad.numpy() for k, p in sb3.policy.named_parameters()}
+
+    batch = {"observations": data.observations.numpy(), "actions": data.actions.numpy(),
+             "old_log_prob": data.old_log_prob.numpy(), "advantages": data.advantages.numpy(),
+             "returns": data.returns.numpy()}
+    (j_loss, (j_pg, j_vf, j_ent, _, _)), grads = jax.value_and_grad(ppo_loss, has_aux=True)(
+        jx.params, batch, 0.2, 0.0, 0.5, jx._nets, jx._act, True)
+    for ours, theirs in ((j_loss, loss), (j_pg, pg), (j_vf, vf), (j_ent, ent)):
+        assert float(ours) == pytest.approx(theirs.item(), rel=STAT_RTOL, abs=1e-7)
+    for key, g in torch_grads.items():
+        np.testing.assert_allclose(np.asarray(grads[key]), g, rtol=1e-4, atol=1e-5 * np.abs(g).max(), err_msg=key)
+
+
+@pytest.mark.parametrize("l2", [None, "coupled", "decoupled"])
+def test_one_update_matches_sb3_weights_and_logged_stats(l2):
+    overrides = [] if l2 is None else ["agent=l2", f"agent.l2.mode={l2}", "agent.l2.coef=1e-2"]
+    sb3, jx = pair(overrides)
+    sb3_rollout_into_both(sb3, jx)
+    for model in (sb3, jx):
+        model.set_logger(configure_logger(0, None, "", False))
+        np.random.seed(123)  # the same minibatch order: both draw np.random.permutation per epoch
+        model.train()
+    a, b = sb3.parameter_arrays(), jx.parameter_arrays()
+    moved = max(np.abs(a[k] - pair(overrides)[0].parameter_arrays()[k]).max() for k in a)
+    assert moved > 1e-3  # the update did something
+    for key in a:
+        np.testing.assert_allclose(b[key], a[key], rtol=0, atol=WEIGHT_ATOL[l2], err_msg=key)
+    for key in ("train/policy_gradient_loss", "train/value_loss", "train/entropy_loss", "train/clip_fraction",
+                "train/loss", "train/explained_variance", "train/std", "train/learning_rate", "train/n_updates",
+                "train/clip_range"):
+        assert jx.logger.name_to_value[key] == pytest.approx(sb3.logger.name_to_value[key], rel=1e-5, abs=1e-6), key
+    # approx KL = mean((r - 1) - log r) ~ (log r)^2 / 2 cancels in float32: absolute, not relative, agreement
+    assert jx.logger.name_to_value["train/approx_kl"] == pytest.approx(sb3.logger.name_to_value["train/approx_kl"],
+                                                                      abs=1e-6)
+
+
+def test_l2_changes_the_update_only_through_the_decay():
+    """Coupled L2 on the JAX learner with coef 0 is plain PPO; with coef > 0 it moves penalized weights only."""
+    plain, zero = pair()[1], pair(["agent=l2", "agent.l2.coef=0.0"])[1]
+    decayed = pair(["agent=l2", "agent.l2.coef=1e-1", "agent.l2.params=[policy]", "agent.l2.biases=false"])[1]
+    sb3_rollout_into_both(pair()[0], plain, zero, decayed)
+    for model in (plain, zero, decayed):
+        model.set_logger(configure_logger(0, None, "", False))
+        np.random.seed(5)
+        model.train()
+    p, z, d = plain.parameter_arrays(), zero.parameter_arrays(), decayed.parameter_arrays()
+    assert all(np.array_equal(p[k], z[k]) for k in p)
+    changed = {k for k in p if not np.allclose(p[k], d[k], atol=1e-6)}
+    assert {"mlp_extractor.policy_net.0.weight", "mlp_extractor.policy_net.2.weight", "action_net.weight"} <= changed
+    assert not any(k.startswith(("mlp_extractor.value_net", "value_net")) for k in changed)
+
+
+def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop():
+    """Replay the JAX learner's recorded actions through HoverVecEnv.step (the env SB3 steps) and rebuild every
+    buffer entry with SB3's definitions: observations, rewards with the timeout bootstrap, episode starts,
+    values and log-probabilities of the networks, GAE advantages and returns (SB3's RolloutBuffer)."""
+    n, steps = 4, 300
+
+    def make_env():
+        return HoverVecEnv(n_envs=n, seed=3, wind=WindSchedule([3.0, 1.0], segment_steps=500), episode_seconds=0.8,
+                           world_bound=2.5, reward=HoverReward(crash_reward=-500.0))
+    env = make_env()
+    model = JaxPPO(env, n_steps=steps, batch_size=60, seed=3)
+    model.params["log_std"] = model.params["log_std"] + 1.0  # wide actions: crashes and timeouts both happen
+    model._export_weights()
+    _, callback = model._setup_learn(10**6, None)
+    callback.init_callback(model)
+    model.collect_rollouts(env, callback, model.rollout_buffer, steps)
+    buf = model.rollout_buffer
+
+    replay = make_env()
+    obs, starts = replay.reset(), np.ones(n, dtype=bool)
+    truncations = crashes = 0
+    for t in range(steps):
+        np.testing.assert_allclose(buf.observations[t], obs, rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(buf.episode_starts[t], starts.astype(np.float32))
+        obs, rewards, dones, infos = replay.step(np.clip(buf.actions[t], -1, 1))
+        for i in np.flatnonzero(dones):
+            if infos[i]["TimeLimit.truncated"]:
+                truncations += 1
+                value = np.empty(1, np.float32)
+                compiled.values_of(infos[i]["terminal_observation"][None], *model._vf, False, value)
+                rewards[i] += model.gamma * value[0]
+            crashes += infos[i]["crashed"]
+        np.testing.assert_allclose(buf.rewards[t], rewards, rtol=1e-6, atol=1e-5)
+        starts = dones
+    assert truncations > 0 and crashes > 0
+    assert replay.global_step == env.global_step
+
+    import jax.numpy as jnp
+
+    from sweep.agents.jax_ppo import gaussian_log_prob, mlp_forward
+    flat_obs = buf.observations.reshape(-1, buf.observations.shape[-1])
+    mean, _ = mlp_forward(model.params, model._nets[0], jnp.asarray(flat_obs), jnp.tanh)
+    values, _ = mlp_forward(model.params, model._nets[1], jnp.asarray(flat_obs), jnp.tanh)
+    np.testing.assert_allclose(buf.values.ravel(), np.asarray(values).ravel(), rtol=1e-5, atol=1e-5)
+    log_prob = gaussian_log_prob(jnp.asarray(buf.actions.reshape(-1, 4)), mean, model.params["log_std"])
+    np.testing.assert_allclose(buf.log_probs.ravel(), np.asarray(log_prob), rtol=1e-5, atol=1e-4)
+
+    ref = RolloutBuffer(steps, env.observation_space, env.action_space, gamma=model.gamma, gae_lambda=model.gae_lambda,
+                        n_envs=n)
+    for key in ("rewards", "values", "episode_starts"):
+        getattr(ref, key)[...] = getattr(buf, key)
+    last = np.empty(n, np.float32)
+    compiled.values_of(model._last_obs, *model._vf, False, last)
+    ref.compute_returns_and_advantage(torch.as_tensor(last), model._last_episode_starts)
+    np.testing.assert_allclose(buf.advantages, ref.advantages, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(buf.returns, ref.returns, rtol=1e-5, atol=1e-4)
+
+
+def test_saved_model_is_an_sb3_ppo_that_acts_the_same(tmp_path):
+    _, jx = pair()
+    jx.learn(2048)
+    jx.save(tmp_path / "model.zip")
+    loaded = PPO.load(tmp_path / "model.zip", device="cpu")
+    obs = np.random.default_rng(0).normal(size=(32, 13)).astype(np.float32)
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], jx.predict(obs, deterministic=True)[0],
+                               atol=1e-5)
