@@ -27,14 +27,16 @@ def history(client, run_id, key):
     return [(m.step, m.value) for m in client.get_metric_history(run_id, key)]
 
 
-RECOM_RUN = ["agent=recom_l2", "seed=4", "train.total_timesteps=6144", "agent.ppo.n_steps=512", "agent.ppo.n_epochs=2",
+RECOM_RUN = ["agent=recom_l2", "seed=4", "agent.ppo.n_steps=512", "agent.ppo.n_epochs=2",
              "agent.recom.interval=1024", "agent.recom.window=2", "agent.recom.gain=1e-6", "train.checkpoint_every=1024",
              "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
 
 
-def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir):
+@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 61440)])  # jax: ~20x faster, longer run
+def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, learner, total):
     uri = f"sqlite:///{tmp_path / 'killed.db'}"
-    args = [*RECOM_RUN, f"hydra.run.dir={tmp_path / 'out'}"]
+    config = [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"]
+    args = [*config, f"hydra.run.dir={tmp_path / 'out'}"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
     proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=ROOT, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -51,7 +53,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     killed_at = load_checkpoint(checkpoint)["num_timesteps"]
-    assert killed_at < 6144
+    assert killed_at < total
 
     again = run_cli(args, uri, ROOT)
     assert again.returncode == 0, again.stderr[-2000:]
@@ -59,11 +61,11 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     assert len(runs) == 1 and runs[0].info.status == "FINISHED"
     run_id = runs[0].info.run_id
     steps = [s for s, _ in history(client, run_id, "time/total_timesteps")]
-    assert steps == list(range(512, 6144 + 1, 512))  # strictly increasing, none missing, none duplicated
+    assert steps == list(range(512, total + 1, 512))  # strictly increasing, none missing, none duplicated
 
     # The resumed run is the run that would have happened: same histories as an uninterrupted one.
     ref_uri = f"sqlite:///{tmp_path / 'reference.db'}"
-    ref = run_cli([*RECOM_RUN, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, ROOT)
+    ref = run_cli([*config, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, ROOT)
     assert ref.returncode == 0, ref.stderr[-2000:]
     ref_client, (ref_run,) = runs_of(ref_uri)
     for key in ("train/learning_rate", "rollout/ep_rew_mean", "train/loss", "recom/cost"):
@@ -76,12 +78,13 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     assert len(history(client, run_id, "time/total_timesteps")) == len(steps)
 
 
-def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch):
+@pytest.mark.parametrize("learner", ["sb3", "jax"])
+def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch, learner):
     histories = []
     for attempt in range(2):
         uri = f"sqlite:///{tmp_path / f'{attempt}.db'}"
         monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-        run_id = run(compose_cfg(["agent=l2", "seed=11", "train.total_timesteps=1536", "agent.ppo.n_steps=512",
+        run_id = run(compose_cfg(["agent=l2", "seed=11", f"agent.learner={learner}", "train.total_timesteps=1536", "agent.ppo.n_steps=512",
                                   "eval.episodes=2", "env.episode_seconds=1.0"]), tmp_path / f"job{attempt}")
         client = MlflowClient(uri)
         histories.append({k: history(client, run_id, k) for k in ("rollout/ep_rew_mean", "train/loss")})

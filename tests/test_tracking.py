@@ -58,8 +58,21 @@ def test_failing_run_ends_failed_with_reason(store, tmp_path):
     cfg = compose_cfg(TINY)
     with pytest.raises(RuntimeError):
         with TrackedRun(cfg, {"agent": "ppo"}) as tracked:
-            MlflowWriter(tracked).write({"rollout/ep_rew_mean": -3.0, "note": "text"}, {}, step=7)
+            MlflowWriter(tracked, flush_every_s=0).write({"rollout/ep_rew_mean": -3.0, "note": "text"}, {}, step=7)
             raise RuntimeError("boom")
     client, (r,) = all_runs(store)
     assert r.info.status == "FAILED" and r.data.tags["failure_reason"] == "RuntimeError: boom"
     assert [(m.step, m.value) for m in client.get_metric_history(r.info.run_id, "rollout/ep_rew_mean")] == [(7, -3.0)]
+
+
+def test_writer_buffers_dumps_until_flush_and_drops_replayed_steps(store):
+    with TrackedRun(compose_cfg(TINY), {"agent": "ppo"}) as tracked:
+        writer = MlflowWriter(tracked, after_step=4, flush_every_s=3600)
+        for step in (4, 5, 6):  # step 4 was logged before a resume: dropped
+            writer.write({"rollout/ep_rew_mean": float(-step), "time/iterations": 1}, {}, step=step)
+        history = lambda: [(m.step, m.value) for m in tracked.client.get_metric_history(tracked.run_id,  # noqa: E731
+                                                                                        "rollout/ep_rew_mean")]
+        assert history() == []
+        writer.flush()
+        assert history() == [(5, -5.0), (6, -6.0)]
+        assert tracked.client.get_metric_history(tracked.run_id, "time/iterations") == []

@@ -60,9 +60,11 @@ def _stateful(callbacks: list[BaseCallback]) -> list[BaseCallback]:
 class Checkpointer(BaseCallback):
     """Saves every ``every`` timesteps after an update; restores a checkpoint when learning starts."""
 
-    def __init__(self, path: Path, every: int, callbacks: list[BaseCallback], resume: dict | None = None) -> None:
+    def __init__(self, path: Path, every: int, callbacks: list[BaseCallback], resume: dict | None = None,
+                 before_save=None) -> None:
         super().__init__()
         self.path, self.every = Path(path), int(every)
+        self.before_save = before_save  # e.g. flush buffered metrics, so the store covers what the checkpoint does
         self.others = _stateful(callbacks)
         self.resume = resume
         self.last_saved = resume["num_timesteps"] if resume else 0
@@ -102,6 +104,8 @@ class Checkpointer(BaseCallback):
             self.save()
 
     def save(self) -> None:
+        if self.before_save is not None:
+            self.before_save()
         model = self.model
         state = {
             "num_timesteps": model.num_timesteps,

@@ -132,6 +132,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("eval.seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
     ("eval.success_radius", positive, "a number > 0 (m)"),
     ("eval.success_hold_s", non_negative, "a number >= 0 (s)"),
+    ("tracking.flush_every_s", non_negative, "a number >= 0 (s; 0 writes every logger dump at once)"),
     ("tracking.experiment", lambda v: isinstance(v, str) and v.strip() != "", "a non-empty string"),
 ]
 

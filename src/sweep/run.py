@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.utils import set_random_seed
+from threadpoolctl import threadpool_limits
 
 from sweep.agents import build_learner, build_remedies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
@@ -72,6 +73,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     validate(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.train.torch_threads)
+    # NumPy's BLAS too (diagnostics' SVD): its idle threads spin and take the core from the next update
+    threadpool_limits(cfg.train.torch_threads)
     # No argument checks in torch.distributions: a NaN update then surfaces as train/loss=nan, which
     # NonFiniteGuard reports, instead of a ValueError deep inside SB3's next minibatch.
     torch.distributions.Distribution.set_default_validate_args(False)
@@ -105,15 +108,21 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
         config_path = out_dir / "config.yaml"
         OmegaConf.save(cfg, config_path, resolve=True)
         tracked.log_artifact(config_path)
-        writer = MlflowWriter(tracked, after_step=last_logged_step(tracked) if run_id else -1)
+        writer = MlflowWriter(tracked, after_step=last_logged_step(tracked) if run_id else -1,
+                              flush_every_s=cfg.tracking.flush_every_s)
+        checkpointer.before_save = writer.flush
         model.set_logger(Logger(str(out_dir), [CSVOutputFormat(str(out_dir / "progress.csv")), writer]))
 
         if state:
             Checkpointer.prepare_model(model, state)
         remaining = cfg.train.total_timesteps - model.num_timesteps
-        if remaining > 0:
-            model.learn(total_timesteps=remaining, callback=CallbackList(callbacks), reset_num_timesteps=state is None)
-            checkpointer.save()
+        try:
+            if remaining > 0:
+                model.learn(total_timesteps=remaining, callback=CallbackList(callbacks),
+                            reset_num_timesteps=state is None)
+                checkpointer.save()
+        finally:
+            writer.flush()  # what was logged before a failure is kept too
 
         metrics, flights = evaluate(model, cfg)
         tracked.log_metrics(metrics, model.num_timesteps)

@@ -178,8 +178,9 @@ class JaxPPO(OnPolicyAlgorithm):
             _update, tx=self._tx, decay=decoupled, mask=mask, n_epochs=self.n_epochs, batch_size=self.batch_size,
             ent_coef=float(self.ent_coef), vf_coef=float(self.vf_coef), nets=self._nets, act=self._act,
             normalize_advantage=self.normalize_advantage))
-        self._diagnose = jax.jit(partial(_diagnose, nets=self._nets, act=self._act, ent_coef=float(self.ent_coef),
-                                         vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage))
+        self._activations = jax.jit(partial(_hidden, nets=self._nets, act=self._act))
+        self._grad_norm = jax.jit(partial(_grad_norm, nets=self._nets, act=self._act, ent_coef=float(self.ent_coef),
+                                          vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage))
         self._export_weights()
 
     def use_l2(self, coef: float, mode: str = "coupled", params=("policy", "value"), biases: bool = True) -> None:
@@ -282,21 +283,13 @@ class JaxPPO(OnPolicyAlgorithm):
 
     def hidden_activations(self, obs: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
         """Hidden-layer activations of the policy and of the value network on ``obs``."""
-        pi_hidden, vf_hidden, _ = self._diagnose(self.params, self._diag_batch(obs))
+        pi_hidden, vf_hidden = self._activations(self.params, np.asarray(obs, np.float32))
         return [np.asarray(h) for h in pi_hidden], [np.asarray(h) for h in vf_hidden]
 
     def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1), before clipping."""
-        batch = self._diag_batch(obs, actions, advantages, returns)
-        return float(self._diagnose(self.params, batch)[2])
-
-    @staticmethod
-    def _diag_batch(obs, actions=None, advantages=None, returns=None) -> dict[str, np.ndarray]:
-        n = len(obs)
-        return {"observations": np.asarray(obs, np.float32),
-                "actions": np.zeros((n, 4), np.float32) if actions is None else np.asarray(actions, np.float32),
-                "advantages": np.zeros(n, np.float32) if advantages is None else np.asarray(advantages, np.float32),
-                "returns": np.zeros(n, np.float32) if returns is None else np.asarray(returns, np.float32)}
+        batch = {"observations": obs, "actions": actions, "advantages": advantages, "returns": returns}
+        return float(self._grad_norm(self.params, {k: np.asarray(v, np.float32) for k, v in batch.items()}))
 
     def learner_state(self) -> dict[str, Any]:
         return {"params": self.parameter_arrays(), "opt_state": jax.tree.map(np.asarray, self.opt_state),
@@ -350,12 +343,15 @@ def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask,
     return params, opt_state, stats
 
 
-def _diagnose(params, batch, *, nets, act, ent_coef, vf_coef, normalize_advantage):
-    """(policy hidden activations, value hidden activations, norm of the loss gradient at ratio 1)."""
-    _, pi_hidden = mlp_forward(params, nets[0], batch["observations"], act)
-    _, vf_hidden = mlp_forward(params, nets[1], batch["observations"], act)
+def _hidden(params, obs, *, nets, act):
+    """Hidden activations of the policy and of the value network."""
+    return mlp_forward(params, nets[0], obs, act)[1], mlp_forward(params, nets[1], obs, act)[1]
+
+
+def _grad_norm(params, batch, *, nets, act, ent_coef, vf_coef, normalize_advantage):
+    """Global norm of the PPO loss gradient with the rollout policy = the current one (ratio 1)."""
     mean, _ = mlp_forward(params, nets[0], batch["observations"], act)
     old = jax.lax.stop_gradient(gaussian_log_prob(batch["actions"], mean, params["log_std"]))
     grads = jax.grad(lambda p: ppo_loss(p, {**batch, "old_log_prob": old}, 0.2, ent_coef, vf_coef, nets, act,
                                         normalize_advantage)[0])(params)
-    return pi_hidden, vf_hidden, optax.global_norm(grads)
+    return optax.global_norm(grads)

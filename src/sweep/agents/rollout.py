@@ -15,7 +15,9 @@ The env step is the env's own compiled pieces: the fast backend's ``_step_loop``
 ``gae`` is SB3's ``RolloutBuffer.compute_returns_and_advantage``.
 
 The networks run here in float32 from weights laid out (in, out) per layer (``mlp``); the JAX
-learner re-exports them after every update.
+learner re-exports them after every update. ``tanh`` is the float32 rational approximation XLA's CPU
+backend (Eigen) evaluates: within 2.6e-7 of tanh, bit-identical to ``jnp.tanh`` for ~80% of inputs
+(libm's: ~30%), and it vectorises, so the rollout's policy is the update's policy, 3x cheaper.
 """
 from __future__ import annotations
 
@@ -28,6 +30,25 @@ from sweep.envs.backends.fast import _step_loop
 from sweep.envs.hover import task_outcome
 
 LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+
+
+@numba.njit(cache=True, fastmath=True, inline="always")
+def tanh(x):
+    """float32 tanh: x p(x^2) / q(x^2) on x clamped to +-7.9053 (Eigen's ptanh_float coefficients)."""
+    x = min(max(x, np.float32(-7.90531110763549805)), np.float32(7.90531110763549805))
+    x2 = x * x
+    p = np.float32(-2.76076847742355e-16)
+    p = p * x2 + np.float32(2.00018790482477e-13)
+    p = p * x2 + np.float32(-8.60467152213735e-11)
+    p = p * x2 + np.float32(5.12229709037114e-08)
+    p = p * x2 + np.float32(1.48572235717979e-05)
+    p = p * x2 + np.float32(6.37261928875436e-04)
+    p = p * x2 + np.float32(4.89352455891786e-03)
+    q = np.float32(1.19825839466702e-06)
+    q = q * x2 + np.float32(1.18534705686654e-04)
+    q = q * x2 + np.float32(2.26843463243900e-03)
+    q = q * x2 + np.float32(4.89352518554385e-03)
+    return x * p / q
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -49,7 +70,7 @@ def mlp(x, weights, biases, relu, h_in, h_out, out):
                 dst[j] += xk * w[k, j]
         if layer < n_layers - 1:
             for j in range(n_out):
-                h_in[j] = max(h_out[j], 0.0) if relu else math.tanh(h_out[j])
+                h_in[j] = max(h_out[j], np.float32(0.0)) if relu else tanh(h_out[j])
 
 
 @numba.njit(cache=True)
