@@ -11,7 +11,7 @@ from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.dormant import dormant_mask, dormant_ratio, dormant_scores, srank
 from sweep.plasticity.l2 import L2Regularization
-from sweep.plasticity.recom import Recom, recom_lr, retrospective_cost
+from sweep.plasticity.recom import Recom, cost_gradient, recom_lr, retrospective_cost
 
 LEARNERS = ["sb3", "jax"]
 
@@ -104,10 +104,12 @@ def test_srank():
 
 def test_recom_equations_by_hand():
     assert retrospective_cost([-10.0, -20.0], [1.0, 3.0]) == pytest.approx((11 + 23) / 2)
-    lr, g = recom_lr(3e-4, cost=110.0, cost_prev=100.0, gain=5e-6, lr_min=1e-5, lr_max=1e-3)
-    assert g == 10.0 and lr == pytest.approx(3e-4 - 5e-5)
-    assert recom_lr(3e-4, 200.0, 100.0, 5e-6, 1e-5, 1e-3)[0] == 1e-5    # clipped below
-    assert recom_lr(3e-4, 0.0, 1000.0, 5e-6, 1e-5, 1e-3)[0] == 1e-3     # clipped above
+    assert cost_gradient(110.0, 100.0) == 10.0 and cost_gradient(110.0, 100.0, "relative") == pytest.approx(0.1)
+    assert cost_gradient(-90.0, -100.0, "relative") == pytest.approx(0.1)  # over |C_prev|: the sign is the change's
+    lr, at_bound = recom_lr(3e-4, 10.0, gain=5e-6, lr_min=1e-5, lr_max=1e-3)
+    assert lr == pytest.approx(3e-4 - 5e-5) and not at_bound
+    assert recom_lr(3e-4, 100.0, 5e-6, 1e-5, 1e-3) == (1e-5, True)     # clipped below
+    assert recom_lr(3e-4, -1000.0, 5e-6, 1e-5, 1e-3) == (1e-3, True)   # clipped above
 
 
 class FakeLogger:
@@ -151,6 +153,7 @@ def test_recom_callback_on_synthetic_sequence():
     assert lrs[3] == pytest.approx(3e-4 - 34e-6)
     assert recom.logger.name_to_value["recom/cost"] == 51.0
     assert recom.logger.name_to_value["recom/cost_gradient"] == 34.0
+    assert recom.logger.name_to_value["recom/at_bound"] == 0.0
 
 
 def test_recom_shifted_window_and_clipping():
@@ -160,6 +163,15 @@ def test_recom_shifted_window_and_clipping():
     # G = 40, lr = 3e-4 - 0.04 -> clipped to 1e-4
     assert lrs[-1] == 1e-4
     assert recom.logger.name_to_value["recom/cost_prev"] == 16.0
+    assert recom.logger.name_to_value["recom/at_bound"] == 1.0
+
+
+def test_recom_relative_gradient_is_the_change_over_the_previous_cost():
+    recom = Recom(interval=200, window=2, gain=1e-4, lr_min=1e-5, lr_max=1e-3, gradient="relative")
+    lrs = drive_recom(recom, [(None, [-50.0]), (2.0, [-10.0, -20.0]), (4.0, [-30.0]), (1.0, [-40.0, -60.0])])
+    # C: 17 then 51 (see above): G = 34 / 17 = 2; lr = 3e-4 - 1e-4 * 2 = 1e-4
+    assert lrs[3] == pytest.approx(1e-4)
+    assert recom.logger.name_to_value["recom/cost_gradient"] == pytest.approx(2.0)
 
 
 @pytest.mark.parametrize("name", LEARNERS)

@@ -120,6 +120,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("agent.recom.lr_min", positive, "a number > 0"),
     ("agent.recom.lr_max", positive, "a number > 0"),
     ("agent.recom.previous", one_of("last_update", "shifted"), "last_update|shifted"),
+    ("agent.recom.gradient", one_of("absolute", "relative"), "absolute|relative"),
     ("plasticity.every_rollouts", positive_int, "an integer > 0"),
     ("plasticity.tau", unit_interval, "a number in [0, 1]"),
     ("plasticity.batch_size", positive_int, "an integer > 0"),

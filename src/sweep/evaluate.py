@@ -2,8 +2,13 @@
 
 ``episodes`` deterministic episodes, one per vehicle of a HoverVecEnv, starts uniform in the training
 start box drawn from ``eval.seed`` (the same starts for every agent and seed), constant wind
-``wind_speed`` along ``direction``, the training episode length. Per episode: position MSE per axis
-over every state of the flight (start included), final distance, return, and success.
+``wind_speed`` along ``direction``, the training episode length (T = 500 steps).
+
+Every flight is scored on the same T states, the positions after each control step (``scored_positions``):
+the start (t = 0) is left out, since the protocol sets it, not the policy; a flight that crashed keeps
+its exit position for the rest of the episode, so a crash weighs as what it is (being outside the box
+until the end) instead of shortening the average. Per flight: position MSE per axis (mean of p_i^2 over
+the T states), final distance |p_T|, return, success.
 
 Success (the paper defines none): the flight did not leave the bounds and the vehicle stayed within
 ``success_radius`` of the origin for the whole final ``success_hold_s`` seconds.
@@ -35,27 +40,53 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int) ->
 
 
 def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:
-    """Fly each vehicle of ``env`` for one episode; positions after the end of a flight are NaN."""
+    """Fly each vehicle of ``env`` for one episode with ``policy.predict(obs, deterministic=True)``.
+
+    Returns positions (N, T + 1, 3) from the start on, NaN after the end of a flight; the step rewards
+    (N, T), 0 after the end; episode lengths, returns and whether each flight crashed."""
     n, steps = env.num_envs, env.episode_steps
     positions = np.full((n, steps + 1, 3), np.nan)
-    returns = np.zeros(n)
+    rewards = np.zeros((n, steps))
+    lengths = np.zeros(n, dtype=int)
     crashed = np.zeros(n, dtype=bool)
     alive = np.ones(n, dtype=bool)
     obs = env.reset()
     positions[:, 0] = env.sim.x
     for t in range(1, steps + 1):
         actions, _ = policy.predict(obs, deterministic=True)
-        obs, rewards, dones, infos = env.step(actions)
+        obs, step_rewards, dones, infos = env.step(actions)
         for i in np.flatnonzero(alive):
             final = infos[i]["terminal_observation"] if dones[i] else obs[i]
             positions[i, t] = final[:3]
-            returns[i] += rewards[i]
+            rewards[i, t - 1] = step_rewards[i]
+            lengths[i] = t
             if dones[i]:
                 alive[i] = False
                 crashed[i] = infos[i]["crashed"]
         if not alive.any():
             break
-    return {"positions": positions, "returns": returns, "crashed": crashed}
+    return {"positions": positions, "rewards": rewards, "returns": rewards.sum(axis=1), "lengths": lengths,
+            "crashed": crashed}
+
+
+def scored_positions(positions: np.ndarray) -> np.ndarray:
+    """(T + 1, 3) flight (start first, NaN after an early end) -> the T post-step states the metrics score,
+    the last position held after an early end."""
+    flown = positions[1:].copy()
+    ended = np.isnan(flown[:, 0])
+    if ended.any():
+        last = int(np.argmax(ended)) - 1
+        flown[ended] = flown[last] if last >= 0 else positions[0]
+    return flown
+
+
+def flight_metrics(positions: np.ndarray, crashed: bool, radius: float, hold_steps: int) -> dict[str, float]:
+    """Per-axis MSE, final distance and success of one flight (see the module docstring)."""
+    scored = scored_positions(positions)
+    mse = np.mean(scored ** 2, axis=0)
+    return {"mse_x": float(mse[0]), "mse_y": float(mse[1]), "mse_z": float(mse[2]),
+            "final_distance": float(np.linalg.norm(scored[-1])),
+            "success": float(hover_success(scored, crashed, radius, hold_steps))}
 
 
 def evaluate(policy, cfg: DictConfig) -> tuple[dict[str, float], dict[str, np.ndarray]]:
@@ -65,23 +96,20 @@ def evaluate(policy, cfg: DictConfig) -> tuple[dict[str, float], dict[str, np.nd
     env = make_env(cfg.env, ev.episodes, wind, ev.seed)
     flights = fly(policy, env)
     hold_steps = int(round(ev.success_hold_s * cfg.env.sim_rate))
-    per_axis, final_dist, success = [], [], []
-    for pos, crash in zip(flights["positions"], flights["crashed"]):
-        flown = pos[~np.isnan(pos[:, 0])]
-        per_axis.append(np.mean(flown ** 2, axis=0))
-        final_dist.append(float(np.linalg.norm(flown[-1])))
-        success.append(hover_success(flown, bool(crash), ev.success_radius, hold_steps))
-    per_axis = np.array(per_axis)
+    per_flight = [flight_metrics(pos, bool(crash), ev.success_radius, hold_steps)
+                  for pos, crash in zip(flights["positions"], flights["crashed"])]
+    mean = {key: float(np.mean([f[key] for f in per_flight])) for key in per_flight[0]}
     metrics = {
-        "eval/success_rate": float(np.mean(success)),
-        "eval/mse_x": float(per_axis[:, 0].mean()),
-        "eval/mse_y": float(per_axis[:, 1].mean()),
-        "eval/mse_z": float(per_axis[:, 2].mean()),
-        "eval/final_distance": float(np.mean(final_dist)),
+        "eval/success_rate": mean["success"],
+        "eval/mse_x": mean["mse_x"],
+        "eval/mse_y": mean["mse_y"],
+        "eval/mse_z": mean["mse_z"],
+        "eval/final_distance": mean["final_distance"],
         "eval/return": float(flights["returns"].mean()),
         "eval/crash_rate": float(flights["crashed"].mean()),
     }
-    trajectories = {**flights, "success": np.array(success), "mse": per_axis,
+    trajectories = {**flights, "success": np.array([f["success"] > 0 for f in per_flight]),
+                    "mse": np.array([[f["mse_x"], f["mse_y"], f["mse_z"]] for f in per_flight]),
                     "dt": np.array(env.dt), "wind": wind.velocity_at(0)}
     return metrics, trajectories
 

@@ -24,19 +24,30 @@ import numpy as np
 from omegaconf import DictConfig
 
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.evaluate import make_env
+from sweep.evaluate import flight_metrics, fly, make_env
 
 
-def _constant(value: float):
-    return lambda env: np.full((env.num_envs, 4), value, dtype=np.float32)
+class FixedPolicy:
+    """``predict`` of a non-learning policy, ``act(env) -> actions`` (it may read the vehicles' state)."""
+
+    def __init__(self, env: HoverVecEnv, act) -> None:
+        self.env, self.act = env, act
+
+    def predict(self, obs, deterministic: bool = True):
+        return self.act(self.env), None
 
 
-def hover_in_place(env: HoverVecEnv) -> np.ndarray:
-    return _constant(2.0 * (env.hover_speed - env.speed_min) / (env.speed_max - env.speed_min) - 1.0)(env)
+def to_action(env: HoverVecEnv, rotor_speeds) -> np.ndarray:
+    """Rotor speeds (rad/s) -> actions in [-1, 1] (the inverse of the env's linear mapping)."""
+    return (2.0 * (np.asarray(rotor_speeds) - env.speed_min) / (env.speed_max - env.speed_min) - 1.0).astype(np.float32)
+
+
+def constant(speed):
+    return lambda env: np.broadcast_to(to_action(env, speed(env)), (env.num_envs, 4)).copy()
 
 
 def se3_controller(env: HoverVecEnv):
-    """RotorPy's SE3Control steering every vehicle to the origin (level, yaw 0); actions in [-1, 1]."""
+    """RotorPy's SE3Control steering every vehicle to the origin (level, yaw 0)."""
     from rotorpy.controllers.quadrotor_control import SE3Control
 
     control = SE3Control(env.params)
@@ -46,42 +57,15 @@ def se3_controller(env: HoverVecEnv):
 
     def act(env: HoverVecEnv) -> np.ndarray:
         s = env.sim
-        speeds = np.stack([control.update(0.0, {"x": s.x[i], "v": s.v[i], "q": s.q[i], "w": s.w[i]}, target)
-                           ["cmd_motor_speeds"] for i in range(env.num_envs)])
-        return (2.0 * (speeds - env.speed_min) / (env.speed_max - env.speed_min) - 1.0).astype(np.float32)
+        return to_action(env, [control.update(0.0, {"x": s.x[i], "v": s.v[i], "q": s.q[i], "w": s.w[i]}, target)
+                               ["cmd_motor_speeds"] for i in range(env.num_envs)])
     return act
 
 
-POLICIES = {"hover in place": lambda env: hover_in_place, "motors off": lambda env: _constant(-1.0),
-            "full throttle": lambda env: _constant(1.0), "RotorPy SE3 controller": se3_controller}
-
-
-def fly_fixed(env: HoverVecEnv, policy, gamma: float, radius: float, hold_steps: int) -> dict[str, float]:
-    """One episode per vehicle of ``env`` under ``policy(env) -> actions``."""
-    from sweep.evaluate import hover_success
-
-    n = env.num_envs
-    ret, disc, length = np.zeros(n), np.zeros(n), np.zeros(n, dtype=int)
-    crashed, alive = np.zeros(n, dtype=bool), np.ones(n, dtype=bool)
-    positions = np.full((n, env.episode_steps, 3), np.nan)
-    env.reset()
-    for t in range(env.episode_steps):
-        _, rewards, dones, infos = env.step(policy(env))
-        for i in np.flatnonzero(alive):
-            positions[i, t] = infos[i]["terminal_observation"][:3] if dones[i] else env.sim.x[i]
-            if dones[i]:
-                crashed[i] = infos[i]["crashed"]
-        ret[alive] += rewards[alive]
-        disc[alive] += gamma ** t * rewards[alive]
-        length[alive] += 1
-        alive &= ~dones
-        if not alive.any():
-            break
-    success = [hover_success(positions[i, :length[i]], crashed[i], radius, hold_steps) for i in range(n)]
-    final = [np.linalg.norm(positions[i, length[i] - 1]) for i in range(n)]
-    return {"return": float(ret.mean()), "discounted_return": float(disc.mean()),
-            "episode_length": float(length.mean()), "crash_rate": float(crashed.mean()),
-            "success_rate": float(np.mean(success)), "final_distance": float(np.median(final))}
+POLICIES = {"hover in place": lambda env: constant(lambda e: e.hover_speed),
+            "motors off": lambda env: constant(lambda e: e.speed_min),
+            "full throttle": lambda env: constant(lambda e: e.speed_max),
+            "RotorPy SE3 controller": se3_controller}
 
 
 def table(cfg: DictConfig) -> list[dict]:
@@ -90,7 +74,16 @@ def table(cfg: DictConfig) -> list[dict]:
     rows = []
     for name, make in POLICIES.items():
         env = make_env(cfg.env, ev.episodes, WindSchedule.constant(ev.wind_speed, list(ev.direction)), ev.seed)
-        rows.append({"policy": name, **fly_fixed(env, make(env), cfg.agent.ppo.gamma, ev.success_radius, hold)})
+        flights = fly(FixedPolicy(env, make(env)), env)
+        scored = [flight_metrics(p, bool(c), ev.success_radius, hold)
+                  for p, c in zip(flights["positions"], flights["crashed"])]
+        discount = cfg.agent.ppo.gamma ** np.arange(env.episode_steps)
+        rows.append({"policy": name, "return": float(flights["returns"].mean()),
+                     "discounted_return": float((flights["rewards"] @ discount).mean()),
+                     "episode_length": float(flights["lengths"].mean()),
+                     "crash_rate": float(flights["crashed"].mean()),
+                     "success_rate": float(np.mean([f["success"] for f in scored])),
+                     "final_distance": float(np.median([f["final_distance"] for f in scored]))})
     return rows
 
 

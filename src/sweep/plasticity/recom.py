@@ -5,6 +5,12 @@
     G_cost = C_ret - C_prev                                     (7)
     lr    <- clip(lr - R_gain * G_cost, lr_min, lr_max)         (8, clipping ours)
 
+``gradient`` chooses how Eq. 7 is read: ``absolute`` (default, the paper as printed) or ``relative``,
+G_cost = (C_ret - C_prev) / |C_prev|, the change as a fraction of the previous cost. With returns and
+losses in the hundreds, ``absolute`` x R_gain = 5e-6 moves the LR by ~1e-3 per update and pins it to a
+bound (docs/calibration.md measures it); ``relative`` makes the step independent of the cost's scale
+(R_gain is then the LR change for a 100% cost change). ``recom/at_bound`` logs 1 when Eq. 8 clipped.
+
 R[t] is the return of a finished episode; L[t] the training loss paired with it: the mean total PPO
 loss (pg + vf_coef*value + ent_coef*entropy, averaged over all minibatches and epochs) of the last
 update *before* the episode ended. Episodes that end before the first update have no loss and are
@@ -34,10 +40,20 @@ def retrospective_cost(returns: np.ndarray, losses: np.ndarray) -> float:
     return float(np.mean(-np.asarray(returns, dtype=np.float64) + np.asarray(losses, dtype=np.float64)))
 
 
-def recom_lr(lr: float, cost: float, cost_prev: float, gain: float, lr_min: float, lr_max: float) -> tuple[float, float]:
-    """Eqs. 7-8: returns (new learning rate, cost gradient G)."""
-    gradient = cost - cost_prev
-    return float(np.clip(lr - gain * gradient, lr_min, lr_max)), gradient
+GRADIENTS = ("absolute", "relative")
+
+
+def cost_gradient(cost: float, cost_prev: float, reading: str = "absolute") -> float:
+    """Eq. 7: C_ret - C_prev (``absolute``), or that change over |C_prev| (``relative``)."""
+    change = cost - cost_prev
+    return change if reading == "absolute" else change / max(abs(cost_prev), 1e-12)
+
+
+def recom_lr(lr: float, gradient: float, gain: float, lr_min: float, lr_max: float) -> tuple[float, bool]:
+    """Eq. 8 with clipping: returns (new learning rate, whether it was clipped to a bound)."""
+    unclipped = lr - gain * gradient
+    new = float(np.clip(unclipped, lr_min, lr_max))
+    return new, new != unclipped
 
 
 @dataclass
@@ -52,10 +68,13 @@ class AdaptiveLR:
 
 class Recom(BaseCallback):
     def __init__(self, interval: int = 40960, window: int = 10, gain: float = 5e-6,
-                 lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update") -> None:
+                 lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update",
+                 gradient: str = "absolute") -> None:
         super().__init__()
+        if gradient not in GRADIENTS:
+            raise ValueError(f"agent.recom.gradient={gradient!r}; allowed: {list(GRADIENTS)}")
         self.interval, self.window, self.gain = int(interval), int(window), float(gain)
-        self.lr_min, self.lr_max, self.previous = float(lr_min), float(lr_max), previous
+        self.lr_min, self.lr_max, self.previous, self.gradient = float(lr_min), float(lr_max), previous, gradient
         self.episodes: deque[tuple[float, float]] = deque(maxlen=self.window + 1)
         self.last_loss: float | None = None
         self.cost_prev: float | None = None
@@ -114,10 +133,12 @@ class Recom(BaseCallback):
             cost_prev = self.cost_prev
         lr = self.schedule.value
         if cost_prev is not None:
-            lr, gradient = recom_lr(lr, cost, cost_prev, self.gain, self.lr_min, self.lr_max)
+            gradient = cost_gradient(cost, cost_prev, self.gradient)
+            lr, at_bound = recom_lr(lr, gradient, self.gain, self.lr_min, self.lr_max)
             self.schedule.value = lr
             self.logger.record("recom/cost_prev", cost_prev)
             self.logger.record("recom/cost_gradient", gradient)
+            self.logger.record("recom/at_bound", float(at_bound))
         self.cost_prev = cost
         self.logger.record("recom/cost", cost)
         self.logger.record("recom/learning_rate", lr)
