@@ -1,4 +1,5 @@
-"""Throughput of the fast backend vs RotorPy, alone and inside SB3 PPO. Run: ``python benchmarks/bench.py``.
+"""Throughput of the fast backend vs RotorPy, alone and inside SB3 PPO, and of the JAX learner vs SB3's PPO.
+Run: ``python benchmarks/bench.py`` (``make bench``).
 
 One table, all rows measured in this run:
 * simulator vehicle-steps/s at N = 1, 16, 256, 1024: RotorPy ``BatchedMultirotor(integrator='rk4')``
@@ -9,6 +10,12 @@ One table, all rows measured in this run:
   (c) HoverVecEnv(n_envs=16, "fast"), n_steps 128 (same 2048-step rollout). One warm-up rollout
   (+ update), then ``PPO_ROLLOUTS`` rollouts (+ updates) timed; ``REPEATS`` interleaved passes, best kept
   (the machine is shared; interference only slows runs down);
+* the JAX learner (``agent.learner=jax``) against SB3 PPO on the same env and hyperparameters, same method:
+  (d) n_envs 1 x n_steps 2048 vs (b); (e) n_envs 16 x n_steps 128 vs (c) (``JAX_ROLLOUTS`` timed rollouts);
+* end to end with the JAX learner: ``sweep.run.run`` (diagnostics, MLflow store, checkpoints, evaluation), the
+  paper's layout (``experiment=paper``): two runs of ``E2E_STEPS`` timesteps, the difference of their wall times
+  gives the steady rate, the remainder the fixed cost; projected: one 20M-step run, and the paper study
+  (30 runs x 20M) on 2 cores from 2 concurrent runs;
 * joblib (loky) scaling: 2 concurrent runs of (c) vs 1 (``JOBLIB_ROLLOUTS`` timed rollouts each), aggregate
   timesteps/s over the span from the (barrier-synchronised) start to the last end (best of ``REPEATS``), and,
   for context, the same ratio for a pure-Python busy loop (what the machine gives two processes now);
@@ -31,6 +38,9 @@ ROLLOUT = 2048
 PPO_ROLLOUTS = 3  # timed, after one warm-up rollout
 REPEATS = 2  # interleaved passes over the PPO configs; the best of each is reported
 JOBLIB_ROLLOUTS = 6  # timed rollouts per run in the joblib rows (longer: concurrent runs start unevenly)
+JAX_ROLLOUTS = 40  # timed rollouts of the JAX learner (~25x faster: more rollouts for the same timing accuracy)
+E2E_STEPS = (102_400, 512_000)  # end-to-end JAX runs: the steady rate comes from their difference
+PAPER_STUDY = (30, 20_000_000)  # runs x timesteps of `python -m sweep -m experiment=paper`
 DT = 0.01
 
 TARGETS = {
@@ -38,6 +48,10 @@ TARGETS = {
     "b": 2.6,  # x (a)
     "c": 5.0,  # x (a)
     "jobs": 1.8,  # 2 jobs vs 1
+    "d": 10.0,  # jax 1 x 2048 vs (b)
+    "e": 15.0,  # jax 16 x 128 vs (c)
+    "run_20m_min": 10.0,  # one 20M-step JAX run, minutes
+    "study_h": 3.0,  # the paper study with the JAX learner on 2 cores, hours
     "rss_mb": 1024,
 }
 
@@ -138,19 +152,27 @@ def _file_barrier(directory: str | None, parties: int, timeout: float = 300.0) -
 
 
 def ppo_run(backend: str, n_envs: int, seed: int = 0, rollouts: int = PPO_ROLLOUTS,
-            barrier: str | None = None, parties: int = 1) -> dict:
+            barrier: str | None = None, parties: int = 1, learner: str = "sb3") -> dict:
     import torch
 
     torch.set_num_threads(1)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
     from stable_baselines3 import PPO
 
     from sweep.envs.hover import HoverVecEnv
     from sweep.envs.wind import WindSchedule
 
     env = HoverVecEnv(n_envs=n_envs, backend=backend, wind=WindSchedule.constant(3.0), seed=seed)
-    model = PPO("MlpPolicy", env, n_steps=ROLLOUT // n_envs, batch_size=64, n_epochs=10, seed=seed,
-                device="cpu", verbose=0)
-    model.learn(ROLLOUT)  # warm-up rollout + update
+    if learner == "jax":
+        from sweep.agents.jax_ppo import JaxPPO
+
+        model = JaxPPO(env, n_steps=ROLLOUT // n_envs, batch_size=64, n_epochs=10, seed=seed)
+    else:
+        model = PPO("MlpPolicy", env, n_steps=ROLLOUT // n_envs, batch_size=64, n_epochs=10, seed=seed,
+                    device="cpu", verbose=0)
+    model.learn(ROLLOUT)  # warm-up rollout + update (and the JAX learner's compilation)
     _file_barrier(barrier, parties)  # concurrent runs start their timed part together
     t0, c0 = time.perf_counter(), time.process_time()
     model.learn(rollouts * ROLLOUT, reset_num_timesteps=False)
@@ -159,6 +181,31 @@ def ppo_run(backend: str, n_envs: int, seed: int = 0, rollouts: int = PPO_ROLLOU
             "cpu_share": (time.process_time() - c0) / wall,
             "t0": t0, "t1": t0 + wall,
             "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "pid": os.getpid()}
+
+
+def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int = 1) -> dict:
+    """One ``python -m sweep experiment=paper agent.learner=jax`` job in-process, into a temporary store."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    with tempfile.TemporaryDirectory() as tmp:
+        os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp}/mlflow.db"
+        os.environ["SWEEP_CHECKPOINT_DIR"] = f"{tmp}/checkpoints"
+        from sweep.run import run
+        from sweep.tracking import PROJECT_ROOT, ensure_store
+
+        ensure_store(os.environ["MLFLOW_TRACKING_URI"], "bench")
+        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[
+                "experiment=paper", "agent.learner=jax", f"train.total_timesteps={total}", f"seed={seed}",
+                "tracking.experiment=bench", "train.progress_every_s=1000", "tracking.log_model=false"])
+        _file_barrier(barrier, parties)
+        t0 = time.perf_counter()
+        run(cfg, Path(tmp) / "job")
+        wall = time.perf_counter() - t0
+    return {"steps": total, "wall": wall, "t0": t0, "t1": t0 + wall,
+            "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
 def _fresh_pool_map(fn, argss):
@@ -211,10 +258,13 @@ def main() -> int:
 
     # PPO end to end, each config in a fresh worker process; REPEATS interleaved passes, best kept
     # (the machine is shared: interference only ever slows a run down)
-    runs: dict[str, list[dict]] = {"a": [], "b": [], "c": []}
+    runs: dict[str, list[dict]] = {"a": [], "b": [], "c": [], "d": [], "e": []}
+    configs = (("a", "sb3", "rotorpy", 1, PPO_ROLLOUTS), ("b", "sb3", "fast", 1, PPO_ROLLOUTS),
+               ("c", "sb3", "fast", 16, PPO_ROLLOUTS), ("d", "jax", "fast", 1, JAX_ROLLOUTS),
+               ("e", "jax", "fast", 16, JAX_ROLLOUTS))
     for _ in range(REPEATS):
-        for key, backend, n_envs in (("a", "rotorpy", 1), ("b", "fast", 1), ("c", "fast", 16)):
-            runs[key].append(_fresh_pool_map(ppo_run, [(backend, n_envs)])[0])
+        for key, learner, backend, n_envs, rollouts in configs:
+            runs[key].append(_fresh_pool_map(ppo_run, [(backend, n_envs, 0, rollouts, None, 1, learner)])[0])
             print(key, {k: round(v, 2) for k, v in runs[key][-1].items()}, flush=True)
     best = {k: max(v, key=lambda r: r["fps"]) for k, v in runs.items()}
     fps = {k: [round(r["fps"]) for r in v] for k, v in runs.items()}
@@ -225,6 +275,34 @@ def main() -> int:
                  f"{best['b']['fps']:,.0f} {fps['b']}", f"{rb:.2f}x", f">= 2.6x: {ok(rb >= TARGETS['b'])}"))
     rows.append(("PPO ts/s (c) fast, n_envs=16, n_steps=128", f"{fa:,.0f}",
                  f"{best['c']['fps']:,.0f} {fps['c']}", f"{rc:.2f}x", f">= 5x: {ok(rc >= TARGETS['c'])}"))
+    rd, re_ = best["d"]["fps"] / best["b"]["fps"], best["e"]["fps"] / best["c"]["fps"]
+    rows.append(("JAX learner ts/s (d) fast, n_envs=1, n_steps=2048 vs (b)", f"{best['b']['fps']:,.0f}",
+                 f"{best['d']['fps']:,.0f} {fps['d']}", f"{rd:.1f}x", f">= 10x: {ok(rd >= TARGETS['d'])}"))
+    rows.append(("JAX learner ts/s (e) fast, n_envs=16, n_steps=128 vs (c)", f"{best['c']['fps']:,.0f}",
+                 f"{best['e']['fps']:,.0f} {fps['e']}", f"{re_:.1f}x", f">= 15x: {ok(re_ >= TARGETS['e'])}"))
+
+    # End to end, JAX learner, experiment=paper: fixed cost and steady rate from two run lengths (best of REPEATS)
+    short, long_ = (min((_fresh_pool_map(e2e_run, [(n,)])[0] for _ in range(REPEATS)), key=lambda r: r["wall"])
+                    for n in E2E_STEPS)
+    rate = (long_["steps"] - short["steps"]) / (long_["wall"] - short["wall"])
+    fixed = short["wall"] - short["steps"] / rate
+    minutes = (fixed + PAPER_STUDY[1] / rate) / 60
+    rows.append(("JAX run end to end (experiment=paper): steady ts/s; fixed cost s", "", f"{rate:,.0f}; {fixed:.0f} s",
+                 "", ""))
+    rows.append(("  projected: one 20M-step run, minutes", "", f"{minutes:.1f}", "",
+                 f"<= 10 min: {ok(minutes <= TARGETS['run_20m_min'])}"))
+    pairs = []
+    for _ in range(REPEATS):
+        with tempfile.TemporaryDirectory() as bar:
+            pair = _fresh_pool_map(e2e_run, [(E2E_STEPS[1], s, bar, 2) for s in (0, 1)])
+        pairs.append(sum(r["steps"] for r in pair) / (max(r["t1"] for r in pair) - min(r["t0"] for r in pair)))
+        print("e2e pair aggregate", round(pairs[-1]), flush=True)
+    agg = max(pairs)
+    hours = (PAPER_STUDY[0] * PAPER_STUDY[1] / agg + PAPER_STUDY[0] / 2 * fixed) / 3600
+    rows.append(("  2 concurrent runs: aggregate ts/s", f"{rate:,.0f} (1 run)", f"{agg:,.0f} {[round(p) for p in pairs]}",
+                 f"{agg / rate:.2f}x", ""))
+    rows.append(("  projected: paper study (30 x 20M) on 2 cores, hours", "", f"{hours:.2f}", "",
+                 f"<= 3 h: {ok(hours <= TARGETS['study_h'])}"))
 
     # joblib scaling: (c) alone vs 2 concurrent (c) runs, each in a fresh loky worker; best of REPEATS.
     # Context measured just before: what the machine gives two CPU-bound processes right now, and
@@ -259,7 +337,7 @@ def main() -> int:
     rows.append(("  context: 2 busy-loop processes vs 1, now", f"{cal1:,.0f}/s", f"{cal2:,.0f}/s",
                  f"{cal2 / cal1:.2f}x", ""))
 
-    rss = {k: max(r["rss_mb"] for r in runs[k]) for k in ("a", "b", "c")} | {
+    rss = {k: max(r["rss_mb"] for r in runs[k]) for k in ("a", "b", "c", "d", "e")} | {
            "joblib x2": max(r["rss_mb"] for _, t in twos for r in t)}
     worst = max(rss.values())
     rows.append(("peak RSS per run, MB", "", ", ".join(f"{k} {v:,.0f}" for k, v in rss.items()), "",
@@ -275,7 +353,8 @@ def main() -> int:
     for r in rows:
         print(line(r))
     print(f"\nPPO: {PPO_ROLLOUTS} rollouts x {ROLLOUT} steps timed after 1 warm-up rollout, each run in a fresh "
-          f"loky worker, best of {REPEATS} interleaved passes (all values in brackets); simulator and env rates "
+          f"loky worker (JAX learner: {JAX_ROLLOUTS} rollouts), best of {REPEATS} interleaved passes (all values in "
+          f"brackets); simulator and env rates "
           f"over {SIM_SECONDS} s each, torch 1 thread; load avg start/end {load0[0]:.2f}/{load1[0]:.2f}; "
           f"total {time.time() - t_start:.0f} s")
     return 0

@@ -187,3 +187,20 @@ def test_same_seed_same_starts():
     a, b = HoverVecEnv(n_envs=4, seed=7).reset(), HoverVecEnv(n_envs=4, seed=7).reset()
     np.testing.assert_array_equal(a, b)
     assert np.abs(a[:, :3]).max() <= 2.0
+
+
+def test_observation_scale_multiplies_velocity_and_body_rates_only():
+    kwargs = dict(n_envs=3, wind=WindSchedule(speeds=[2.0]), seed=5)
+    raw, scaled = HoverVecEnv(**kwargs), HoverVecEnv(**kwargs, observation_scale={"velocity": 0.5, "body_rate": 0.1})
+    raw.reset(), scaled.reset()
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        a = rng.uniform(-1, 1, size=(3, 4)).astype(np.float32)
+        o1, r1, *_ = raw.step(a)
+        o2, r2, *_ = scaled.step(a)
+    np.testing.assert_array_equal(r1, r2)  # the task is the same; only what the policy sees changes
+    np.testing.assert_allclose(o2[:, :3], o1[:, :3])
+    np.testing.assert_allclose(o2[:, 3:6], 0.5 * o1[:, 3:6], rtol=1e-6)
+    np.testing.assert_allclose(o2[:, 6:10], o1[:, 6:10])
+    np.testing.assert_allclose(o2[:, 10:13], 0.1 * o1[:, 10:13], rtol=1e-6)
+    assert np.abs(o1[:, 10:13]).max() > 1.0

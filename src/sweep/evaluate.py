@@ -36,7 +36,8 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int) ->
         n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
-        observation=env_cfg.observation, time_limit=env_cfg.time_limit, seed=seed)
+        observation=env_cfg.observation, time_limit=env_cfg.time_limit,
+        observation_scale=dict(env_cfg.observation_scale), seed=seed)
 
 
 def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:

@@ -78,7 +78,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
         pi_w, pi_b, vf_w, vf_b, log_std, relu, gamma,
         buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
         x, v, q, w, rotor_speeds, dt, geo, rdir, inertia, inv_inertia, c_d, scal, speed_min, speed_max,
-        t_idx, ep_return, episode_steps, world_bound, terminate_at_limit, euler,
+        t_idx, ep_return, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
         w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, rewards, crashed, terminated, truncated):
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
 
@@ -124,8 +124,8 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
                 wind_now[i, k] = wind[t, k]
         _step_loop(x, v, q, w, rotor_speeds, cmd, wind_now, dt, geo, rdir, inertia, inv_inertia, c_d, scal,
                    speed_min, speed_max)
-        task_outcome(x, v, q, w, clipped, t_idx, episode_steps, world_bound, terminate_at_limit, euler,
-                     w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, obs, rewards, crashed,
+        task_outcome(x, v, q, w, clipped, t_idx, episode_steps, world_bound, terminate_at_limit, euler, v_scale,
+                     w_scale, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, obs, rewards, crashed,
                      terminated, truncated)
         any_done = False
         for i in range(n):

@@ -5,6 +5,8 @@
 * Start: position uniform in +-``start_bound`` m per axis, at rest, level, rotors at hover speed.
 * Observation (13-D, RotorPy's layout): position, velocity, attitude quaternion (i, j, k, w), body
   rates; or, with ``observation="euler"``, 12-D with roll/pitch/yaw as in the paper's state list.
+  ``observation_scale`` multiplies the velocity (m/s) and body-rate (rad/s) entries (default 1: RotorPy's
+  raw state); positions stay in metres.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode.
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
@@ -48,8 +50,8 @@ def quat_to_euler_xyz(q, out):
 
 
 @numba.njit(cache=True)
-def task_outcome(x, v, q, w, actions, t_idx, episode_steps, world_bound, terminate_at_limit, euler,
-                 w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward,
+def task_outcome(x, v, q, w, actions, t_idx, episode_steps, world_bound, terminate_at_limit, euler, v_scale,
+                 w_scale, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward,
                  obs, rewards, crashed, terminated, truncated):
     """After the physics step: advance each episode clock, write observation, reward and the
     crashed (left the bounds) / terminated / truncated flags of every vehicle (in place)."""
@@ -66,16 +68,16 @@ def task_outcome(x, v, q, w, actions, t_idx, episode_steps, world_bound, termina
         truncated[i] = at_limit and not terminate_at_limit
         for a in range(3):
             obs[i, a] = x[i, a]
-            obs[i, 3 + a] = v[i, a]
+            obs[i, 3 + a] = v[i, a] * v_scale
         if euler:
             quat_to_euler_xyz(q[i], obs[i, 6:9])
             for a in range(3):
-                obs[i, 9 + a] = w[i, a]
+                obs[i, 9 + a] = w[i, a] * w_scale
         else:
             for a in range(4):
                 obs[i, 6 + a] = q[i, a]
             for a in range(3):
-                obs[i, 10 + a] = w[i, a]
+                obs[i, 10 + a] = w[i, a] * w_scale
 
 
 class HoverVecEnv(VecEnv):
@@ -92,6 +94,7 @@ class HoverVecEnv(VecEnv):
         motor_time_constant: float | None = 0.05,
         observation: str = "quaternion",
         time_limit: str = "truncate",
+        observation_scale: dict | None = None,
         seed: int | None = None,
     ) -> None:
         if observation not in OBSERVATIONS:
@@ -99,6 +102,8 @@ class HoverVecEnv(VecEnv):
         if time_limit not in TIME_LIMITS:
             raise ValueError(f"env.time_limit={time_limit!r}; allowed: {list(TIME_LIMITS)}")
         self.time_limit = time_limit
+        scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
+        self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])
         self.params = crazyflie_params(motor_time_constant)
         self.dt = 1.0 / float(sim_rate)
         self.episode_steps = int(round(episode_seconds * sim_rate))
@@ -133,7 +138,8 @@ class HoverVecEnv(VecEnv):
         self._terminated = np.zeros(n_envs, dtype=np.bool_)
         self._truncated = np.zeros(n_envs, dtype=np.bool_)
         self._task_args = (self.episode_steps, self.world_bound, time_limit == "terminate",
-                           observation == "euler", *self.reward_fn.kernel_args)
+                           observation == "euler", self.velocity_scale, self.body_rate_scale,
+                           *self.reward_fn.kernel_args)
 
     @property
     def kernel_args(self) -> tuple:
@@ -180,7 +186,8 @@ class HoverVecEnv(VecEnv):
             att = np.zeros((self.num_envs, 3))
             for i in range(self.num_envs):
                 quat_to_euler_xyz(s.q[i], att[i])
-        return np.concatenate([s.x, s.v, att, s.w], axis=1).astype(np.float32)
+        return np.concatenate([s.x, s.v * self.velocity_scale, att, s.w * self.body_rate_scale],
+                              axis=1).astype(np.float32)
 
     # ---- checkpoints ----------------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
