@@ -195,3 +195,26 @@ def test_saved_model_is_an_sb3_ppo_that_acts_the_same(tmp_path):
     obs = np.random.default_rng(0).normal(size=(32, 13)).astype(np.float32)
     np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], jx.predict(obs, deterministic=True)[0],
                                atol=1e-5)
+
+
+def test_a_jax_run_is_tracked_like_an_sb3_run(store, tmp_path):
+    """Same metric names (with the same steps), params, tags and artifacts in MLflow; only the learner differs."""
+    from mlflow.tracking import MlflowClient
+
+    from conftest import TINY
+    from sweep.run import run
+
+    client, seen = MlflowClient(store), {}
+    for learner in ("sb3", "jax"):
+        cfg = compose_cfg(["agent=recom_l2", f"agent.learner={learner}", *TINY, "agent.recom.interval=512",
+                           "eval.every_timesteps=512"])
+        r = client.get_run(run(cfg, tmp_path / learner))
+        history = {k: [m.step for m in client.get_metric_history(r.info.run_id, k)] for k in r.data.metrics}
+        seen[learner] = (history, set(r.data.params), {k: v for k, v in r.data.tags.items() if not k.startswith("mlflow.")},
+                         sorted(a.path for a in client.list_artifacts(r.info.run_id)), r.data.params["agent.learner"])
+    (h_sb3, p_sb3, t_sb3, a_sb3, l_sb3), (h_jax, p_jax, t_jax, a_jax, l_jax) = seen["sb3"], seen["jax"]
+    assert (l_sb3, l_jax) == ("sb3", "jax") and t_sb3["learner"] == "sb3" and t_jax["learner"] == "jax"
+    assert h_sb3 == h_jax and len(h_sb3) > 30  # every key, logged at the same timesteps
+    assert p_sb3 == p_jax and a_sb3 == a_jax == ["config.yaml", "eval_trajectories.npz", "model.zip"]
+    different = {k for k in t_sb3 if t_sb3[k] != t_jax.get(k)} - {"learner", "overrides", "checkpoint_dir"}
+    assert different == set() and t_sb3.keys() == t_jax.keys()

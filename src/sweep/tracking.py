@@ -13,11 +13,13 @@ from __future__ import annotations
 import json
 import logging
 import math
+import numbers
 import os
 import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.logger import KVWriter
@@ -92,7 +94,7 @@ class TrackedRun:
         """Several (metrics, step) records in as few ``log_batch`` calls as MLflow allows."""
         ts = int(time.time() * 1000)
         items = [Metric(k, float(v), ts, int(step)) for metrics, step in batches for k, v in metrics.items()
-                 if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))]
+                 if isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)) and math.isfinite(float(v))]
         for i in range(0, len(items), BATCH_LIMIT):
             self.client.log_batch(self.run_id, metrics=items[i:i + BATCH_LIMIT])
 
