@@ -1,7 +1,11 @@
-"""python -m sweep.report on one small real store (built once per module by a real Hydra multirun)."""
+"""python -m sweep.report on one small real store (built once per module by a real Hydra multirun), plus a
+hand-logged experiment in the same store whose numbers are chosen to tell right from nearly right."""
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -9,21 +13,48 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib import image
+from mlflow.entities import Metric, Param
 from mlflow.tracking import MlflowClient
+from scipy.stats import trim_mean
 
+from sweep.report import conditions, load, stats, style, tables
 from sweep.report.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = "report-test"
-SWEEP = ["-m", "agent=ppo,recom_l2", "seed=0,1", "wind=paper", "train.total_timesteps=1024", "agent.ppo.n_steps=512",
-         "wind.segment_steps=512", "++agent.recom.interval=512", "eval.episodes=2", "tracking.log_model=false",
-         "train.progress_every_s=1000", f"tracking.experiment={EXPERIMENT}", "hydra.launcher.n_jobs=2"]
-FIGURES = ["reward_paper", "dormant_paper", "learning_rate_paper", "eval_flights_3d", "eval_position_axes"]
+HAND = "report-hand"  # hand-logged runs: no training, known histories
+# ppo and recom_l2 x two L2 coefficients x two seeds: the PPO runs of either coefficient are the same condition
+# (L2 is off in PPO), RECOM logs recom/at_bound, eval.every_timesteps gives evaluation curves. The SB3 learner:
+# at this size faster than JAX, whose compilation takes ~10 s per job.
+SWEEP = ["-m", "agent=ppo,recom_l2", "agent.l2.coef=0.001,0.01", "seed=0,1", "wind=paper",
+         "train.total_timesteps=1536", "agent.ppo.n_steps=512", "wind.segment_steps=512", "++agent.recom.interval=512",
+         "eval.episodes=2", "eval.every_timesteps=512", "tracking.log_model=false", "train.progress_every_s=1000",
+         f"tracking.experiment={EXPERIMENT}", "hydra.launcher.n_jobs=2"]
+BY = ["--by", "agent.l2.coef", "--baseline", "agent=ppo"]
+CURVE_METRICS = {"reward": "rollout/ep_rew_mean", "episode_length": "rollout/ep_len_mean",
+                 "dormant": "plasticity/dormant_ratio", "weight_norm": "plasticity/weight_norm",
+                 "learning_rate": "train/learning_rate", "eval_success": "eval/success_rate",
+                 "eval_crash": "eval/crash_rate"}
+SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
 TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv"]
 
 
 def env_with(uri: str) -> dict:
     return {**os.environ, "MLFLOW_TRACKING_URI": uri, "HYDRA_FULL_ERROR": "0"}
+
+
+def run_report(store: str, out: Path, *args: str) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of one in-process report run."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("MLFLOW_TRACKING_URI", store)
+    stdout, stderr = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+            code = main(["--out", str(out), *args])
+    finally:
+        mp.undo()
+    return code, stdout.getvalue(), stderr.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -33,70 +64,298 @@ def store(tmp_path_factory) -> str:
     proc = subprocess.run([sys.executable, "-m", "sweep", *SWEEP, f"hydra.sweep.dir={tmp / 'sweep'}"], cwd=ROOT,
                           env=env_with(uri), capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    log_hand_runs(MlflowClient(uri))
     return uri
 
 
 @pytest.fixture(scope="module")
 def report(store, tmp_path_factory):
-    """(output dir, stdout) of one report run, in-process."""
+    """(output dir, stdout) of the report split by the L2 coefficient, with PPO as the baseline."""
     out = tmp_path_factory.mktemp("report")
-    mp = pytest.MonkeyPatch()
-    mp.setenv("MLFLOW_TRACKING_URI", store)
-    try:
-        import contextlib
-        import io
-
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf):
-            code = main(["--experiment", EXPERIMENT, "--out", str(out)])
-    finally:
-        mp.undo()
-    assert code == 0, buf.getvalue()
-    return out, buf.getvalue()
+    code, stdout, stderr = run_report(store, out, "--experiment", EXPERIMENT, *BY)
+    assert code == 0, stdout + stderr
+    return out, stdout
 
 
-def test_report_writes_every_file_and_says_what_is_missing(report):
+@pytest.fixture(scope="module")
+def hand_report(store, tmp_path_factory):
+    """(output dir, stdout) of the report of the hand-logged experiment."""
+    out = tmp_path_factory.mktemp("hand")
+    code, stdout, stderr = run_report(store, out, "--experiment", HAND)
+    assert code == 0, stdout + stderr
+    return out, stdout
+
+
+@pytest.fixture(scope="module")
+def plain_report(store, tmp_path_factory):
+    """(output dir, stdout) of the report without --by."""
+    out = tmp_path_factory.mktemp("plain")
+    code, stdout, stderr = run_report(store, out, "--experiment", EXPERIMENT)
+    assert code == 0, stdout + stderr
+    return out, stdout
+
+
+# -- the runs and their numbers, by hand from the store ------------------------------------------------------
+
+def hand_runs(store: str, experiment: str = EXPERIMENT, by_coef: bool = True) -> pd.DataFrame:
+    """Finished runs with their condition (the agent, plus the L2 coefficient where L2 is on) and final
+    histories, the latest run of each condition/seed only."""
+    client = MlflowClient(store)
+    exp = client.get_experiment_by_name(experiment)
+    rows = []
+    for r in client.search_runs([exp.experiment_id]):
+        agent, params = r.data.tags["agent"], r.data.params
+        coef = params["agent.l2.coef"] if by_coef and params.get("agent.l2.enabled") == "True" else None
+        row = {"run_id": r.info.run_id, "agent": agent, "seed": int(r.data.tags["seed"]),
+               "start": r.info.start_time, "condition": style.label(agent) + (f" (coef={coef})" if coef else ""),
+               **{k: v for k, v in r.data.metrics.items() if k.startswith("eval/")}}
+        for name, key in [("reward", "rollout/ep_rew_mean"), ("dormant", "plasticity/dormant_ratio"),
+                          ("at_bound", "recom/at_bound")]:
+            hist = sorted(client.get_metric_history(r.info.run_id, key), key=lambda m: m.step)
+            row[name] = (np.array([m.step for m in hist], dtype=float), np.array([m.value for m in hist]))
+        rows.append(row)
+    df = pd.DataFrame(rows).sort_values("start")
+    return df.drop_duplicates(["condition", "seed"], keep="last").reset_index(drop=True)
+
+
+def final(history) -> float:
+    """Mean of the values in the last 10% of the run's logged timesteps."""
+    steps, values = history
+    return float(values[steps >= steps[-1] - 0.1 * (steps[-1] - steps[0])].mean())
+
+
+def collapse(history) -> float:
+    """Largest drop below the running peak."""
+    values = history[1]
+    return float(max(max(values[: i + 1]) - v for i, v in enumerate(values)))
+
+
+def log_hand_runs(client: MlflowClient) -> None:
+    """Experiment HAND: PPO seeds 0-1 and RECOM seeds 0-2, reward and dormant histories only (no saturated
+    units, weight norm, episode length, learning rate, evaluation curve; one final evaluation)."""
+    exp_id = client.create_experiment(HAND)
+    steps = np.arange(0, 1001, 100)
+    # RECOM: seed 0 has the highest last reward, seed 2 the best evaluation return; seed 1 the highest final
+    # training reward (mean over steps 900 and 1000): -15 against -22.5 and -30.
+    runs = [("ppo", 0, -60 + steps / 50, None, 0.0), ("ppo", 1, -70 + steps / 40, None, 0.0),
+            ("recom_l2", 0, np.r_[np.full(9, -50.0), -40.0, -5.0], [1, 0, 0, 1], -300.0),
+            ("recom_l2", 1, np.r_[np.full(9, -50.0), -15.0, -15.0], [0, 0, 0, 1], -200.0),
+            ("recom_l2", 2, np.r_[np.full(9, -50.0), -30.0, -30.0], [0, 0], -100.0)]
+    for agent, seed, rewards, bound, ret in runs:
+        run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                 "run_name": f"{agent}-s{seed}", "sweep": "hand"}).info.run_id
+        params = {"wind.speeds": "[3.0]", "wind.segment_steps": "100000", "agent.l2.enabled": str(agent != "ppo"),
+                  "agent.l2.coef": "0.001", "agent.recom.enabled": str(agent == "recom_l2")}
+        metrics = [Metric("rollout/ep_rew_mean", float(r), 0, int(s)) for s, r in zip(steps, rewards)]
+        metrics += [Metric("plasticity/dormant_ratio", 0.01 * seed, 0, int(s)) for s in steps]
+        metrics += [Metric("recom/at_bound", float(b), 0, 250 * (i + 1)) for i, b in enumerate(bound or [])]
+        metrics += [Metric(k, v, 0, 1000) for k, v in [("eval/success_rate", 0.1 * seed), ("eval/mse_x", 1.0 + seed),
+                                                       ("eval/mse_y", 2.0), ("eval/mse_z", 3.0 + seed),
+                                                       ("eval/return", ret), ("eval/crash_rate", 0.5)]]
+        client.log_batch(run_id, metrics=metrics, params=[Param(k, v) for k, v in params.items()])
+        client.set_terminated(run_id)
+
+
+def md_table(path: Path) -> pd.DataFrame:
+    """The Markdown table of a report file, cells as text."""
+    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in path.read_text().splitlines()
+            if line.startswith("|") and not line.startswith("|---")]
+    return pd.DataFrame(rows[1:], columns=rows[0])
+
+
+def figure_stems(out: Path) -> set[str]:
+    pngs = {p.stem for p in out.glob("*.png")}
+    assert pngs == {p.stem for p in out.glob("*.pdf")}
+    return pngs
+
+
+def expected_curves(store: str, experiment: str) -> set[str]:
+    """Curve figures whose data exist: some run has the metric (evaluation metrics at >= 2 steps)."""
+    client = MlflowClient(store)
+    runs = client.search_runs([client.get_experiment_by_name(experiment).experiment_id])
+    stems = set()
+    for stem, key in CURVE_METRICS.items():
+        steps = [len({m.step for m in client.get_metric_history(r.info.run_id, key)}) for r in runs]
+        if max(steps) >= (2 if stem in SPARSE else 1):
+            stems.add(f"{stem}_paper")
+    return stems
+
+
+# -- tests ---------------------------------------------------------------------------------------------------
+
+def test_report_writes_every_file_and_says_what_is_missing(store, report):
     out, stdout = report
-    for stem in FIGURES:
-        for ext in ("png", "pdf"):
-            assert (out / f"{stem}.{ext}").stat().st_size > 1000, f"{stem}.{ext}"
+    assert figure_stems(out) == expected_curves(store, EXPERIMENT) | {"eval_flights_3d", "eval_position_axes"}
+    assert {"episode_length_paper", "weight_norm_paper", "eval_success_paper", "eval_crash_paper"} <= figure_stems(out)
+    for stem in figure_stems(out):
+        pixels = image.imread(out / f"{stem}.png")
+        height, width = pixels.shape[:2]
+        assert 900 <= width <= 1200 and 500 <= height <= 2000, (stem, pixels.shape)  # 3.5 in at 300 dpi
+        rgba = np.ascontiguousarray((pixels * 255).astype(np.uint8)).view(np.uint32)  # one number per pixel
+        assert len(np.unique(rgba)) > 20, f"{stem}.png is blank"
+        pdf = (out / f"{stem}.pdf").read_bytes()
+        assert pdf.startswith(b"%PDF") and re.search(rb"/Type\s*/Page[^s]", pdf), f"{stem}.pdf"
+    # the dormant figure carries the saturated-unit panel below it
+    assert image.imread(out / "dormant_paper.png").shape[0] > 1.3 * image.imread(out / "reward_paper.png").shape[0]
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     assert stdout.strip().splitlines()[-1] == str(out.resolve())
     assert "missing: agent=l2 wind=paper" in stdout and "missing: agent=ppo wind=none" in stdout
+    # PPO ran once per L2 coefficient, but L2 is off in PPO: the same condition, the older runs left out
+    assert "2 older duplicate run(s) of the same agent/agent.l2.coef/wind/seed left out" in stdout
 
 
-def test_table3_equals_a_hand_aggregation_of_the_mlflow_values(store, report):
+def test_curve_figures_exist_exactly_when_their_data_exist(store, hand_report):
+    tmp_path, stdout = hand_report
+    assert figure_stems(tmp_path) == expected_curves(store, HAND) == {"reward_paper", "dormant_paper"}
+    # no saturated share logged: the dormant figure has a single panel
+    assert image.imread(tmp_path / "dormant_paper.png").shape[0] < 1.1 * image.imread(
+        tmp_path / "reward_paper.png").shape[0]
+    assert "missing: eval_trajectories.npz of ppo-s0" in stdout
+
+
+def test_by_splits_conditions_by_the_logged_params(store, report):
     out, _ = report
-    client = MlflowClient(store)
-    exp = client.get_experiment_by_name(EXPERIMENT)
-    runs = client.search_runs([exp.experiment_id])
-    hand = pd.DataFrame([{"agent": r.data.tags["agent"], "wind": r.data.tags["wind"],
-                          **{k: r.data.metrics[f"eval/{k}"] for k in ("success_rate", "mse_x", "mse_y", "mse_z")}}
-                         for r in runs]).groupby(["agent", "wind"])
-    table = pd.read_csv(out / "table3.csv").set_index(["agent", "wind"])
-    assert sorted(table.index) == [("ppo", "paper"), ("recom_l2", "paper")]
-    means, counts = hand.mean(), hand.size()
-    for idx in table.index:
-        assert table.loc[idx, "n_seeds"] == counts[idx] == 2
-        assert table.loc[idx, "success_rate_mean"] == pytest.approx(100 * means.loc[idx, "success_rate"])
+    hand = hand_runs(store)
+    summary = pd.read_csv(out / "summary.csv", dtype={"agent.l2.coef": str}, keep_default_na=False)
+    assert list(summary["condition"]) == ["PPO", "RECOM + L2 PPO (coef=0.001)", "RECOM + L2 PPO (coef=0.01)"]
+    assert list(summary["agent.l2.coef"]) == ["n/a", "0.001", "0.01"]
+    assert sorted(summary["condition"]) == sorted(hand["condition"].unique())
+    counts = hand.groupby("condition").size()
+    assert all(summary["n_seeds"] == summary["condition"].map(counts)) and (summary["n_seeds"] == 2).all()
+    for label in summary["condition"]:
+        assert f"| {label} | paper |" in (out / "summary.md").read_text()
+    table3 = pd.read_csv(out / "table3.csv")
+    assert list(table3["condition"]) == list(summary["condition"])
+
+
+def test_table3_equals_a_hand_aggregation_with_the_best_seed(store, report):
+    out, _ = report
+    hand = hand_runs(store)
+    table = pd.read_csv(out / "table3.csv").set_index("condition")
+    assert "Best = the seed whose final training reward" in (out / "table3.md").read_text()
+    shown = md_table(out / "table3.md").set_index("Control policy")
+    for cond, g in hand.groupby("condition"):
+        row = table.loc[cond]
+        assert row["n_seeds"] == len(g) == 2
+        assert row["success_rate_mean"] == pytest.approx(100 * g["eval/success_rate"].mean())
         for axis in "xyz":
-            assert table.loc[idx, f"mse_{axis}_mean"] == pytest.approx(means.loc[idx, f"mse_{axis}"])
-        assert np.isfinite(table.loc[idx, "mse_x_ci95"])  # two seeds: a Student-t interval exists
-    markdown = (out / "table3.md").read_text()
-    assert f"{means.loc[('ppo', 'paper'), 'mse_x']:.2f}" in markdown
+            assert row[f"mse_{axis}_mean"] == pytest.approx(g[f"eval/mse_{axis}"].mean())
+        assert np.isfinite(row["mse_x_ci95"])  # two seeds: a Student-t interval exists
+        best = g.loc[g["reward"].map(final).idxmax()]
+        assert row["best_seed"] == best["seed"]
+        assert row["best_success_rate"] == pytest.approx(100 * best["eval/success_rate"])
+        for axis in "xyz":
+            assert row[f"best_mse_{axis}"] == pytest.approx(best[f"eval/mse_{axis}"])
+        assert shown.loc[cond, "Best seed"] == str(best["seed"])
+        assert shown.loc[cond, "Best: success (%)"] == f"{100 * best['eval/success_rate']:.0f}"
+        assert shown.loc[cond, "Best: MSE x/y/z (m²)"] == " / ".join(f"{best[f'eval/mse_{a}']:.2f}" for a in "xyz")
 
 
-def test_summary_has_one_row_per_condition_and_compares_with_ppo(report):
+def test_summary_equals_a_hand_computation_from_the_histories(store, report):
     out, _ = report
-    summary = pd.read_csv(out / "summary.csv").set_index("agent")
-    assert list(summary.index) == ["ppo", "recom_l2"] and (summary["n_seeds"] == 2).all()
-    assert np.isnan(summary.loc["ppo", "p_improve_over_ppo"])
-    assert 0.0 <= summary.loc["recom_l2", "p_improve_over_ppo"] <= 1.0
-    for agent in summary.index:
-        row = summary.loc[agent]
+    hand = hand_runs(store)
+    summary = pd.read_csv(out / "summary.csv").set_index("condition")
+    for cond, g in hand.groupby("condition"):
+        row = summary.loc[cond]
+        assert row["collapse"] == pytest.approx(g["reward"].map(collapse).mean())
+        assert row["final_dormant_ratio"] == pytest.approx(g["dormant"].map(final).mean())
+        assert row["final_reward"] == pytest.approx(g["reward"].map(final).mean())
+        assert row["eval_success_pct"] == pytest.approx(100 * g["eval/success_rate"].mean())
+        assert row["eval_crash_pct"] == pytest.approx(100 * g["eval/crash_rate"].mean())
         assert row["iqm_ci_low"] <= row["iqm_final_reward"] <= row["iqm_ci_high"]
-        assert row["collapse"] >= 0 and 0 <= row["final_dormant_ratio"] <= 1
+        shares = [v.mean() for _, v in g["at_bound"] if len(v)]
+        if g["agent"].iloc[0] == "recom_l2":
+            assert len(shares) == 2 and row["lr_at_bound_pct"] == pytest.approx(100 * np.mean(shares))
+        else:
+            assert not shares and np.isnan(row["lr_at_bound_pct"])
+    assert 0.0 <= summary.loc["RECOM + L2 PPO (coef=0.01)", "p_improve_over_ppo"] <= 1.0
+    assert np.isnan(summary.loc["PPO", "p_improve_over_ppo"])
+
+
+def test_baseline_is_the_iqm_difference_to_the_matching_condition(store, report):
+    out, _ = report
+    hand = hand_runs(store)
+    iqm = {cond: trim_mean(g["reward"].map(final), 0.25) for cond, g in hand.groupby("condition")}
+    summary = pd.read_csv(out / "summary.csv", keep_default_na=False).set_index("condition")
+    assert summary.loc["PPO", "baseline"] == "" and summary.loc["PPO", "delta_iqm"] == ""
+    for cond in ["RECOM + L2 PPO (coef=0.001)", "RECOM + L2 PPO (coef=0.01)"]:
+        row = summary.loc[cond]
+        assert row["baseline"] == "PPO"  # PPO's L2 coefficient does not apply: it is the baseline of both
+        delta, low, high = (float(row[c]) for c in ("delta_iqm", "delta_iqm_ci_low", "delta_iqm_ci_high"))
+        assert delta == pytest.approx(iqm[cond] - iqm["PPO"])
+        assert low <= delta <= high and low < high
+    shown = md_table(out / "summary.md").set_index("Agent")["Δ IQM vs agent=ppo [95% CI]"]
+    row = summary.loc["RECOM + L2 PPO (coef=0.01)"]
+    assert shown.loc["PPO"] == "" and shown.loc["RECOM + L2 PPO (coef=0.01)"] == (
+        f"{float(row['delta_iqm']):.1f} [{float(row['delta_iqm_ci_low']):.1f}, {float(row['delta_iqm_ci_high']):.1f}]")
+
+    # the other direction, a --by key as the baseline (1e-3 names the logged 0.001); the summary without figures
+    client = load.client_for(store)
+    runs, _ = load.load_runs(client, load.pick_experiment(client, EXPERIMENT)[0], None, ["agent.l2.coef"])
+    runs, conds = conditions.build(runs, ["agent.l2.coef"])
+    per_run = stats.per_run_curve_stats(load.load_histories(client, runs))
+    numbers, display = tables.summary(runs, per_run, conds, conditions.parse_baseline("agent.l2.coef=1e-3", conds))
+    by_coef = numbers.set_index("condition")
+    assert by_coef["delta_iqm"].isna().tolist() == [True, True, False]  # PPO (n/a) and coef=0.001 itself
+    row = by_coef.loc["RECOM + L2 PPO (coef=0.01)"]
+    assert row["baseline"] == "RECOM + L2 PPO (coef=0.001)"
+    assert row["delta_iqm"] == pytest.approx(iqm["RECOM + L2 PPO (coef=0.01)"] - iqm["RECOM + L2 PPO (coef=0.001)"])
+    assert row["delta_iqm_ci_low"] <= row["delta_iqm"] <= row["delta_iqm_ci_high"]
+    assert "Δ IQM vs agent.l2.coef=0.001 [95% CI]" in display.columns
+
+
+def test_hand_logged_runs_give_the_chosen_best_seed_and_bound_share(hand_report):
+    tmp_path, _ = hand_report
+    table = pd.read_csv(tmp_path / "table3.csv").set_index("agent")
+    assert table.loc["recom_l2", "best_seed"] == 1  # not 0 (highest last reward) nor 2 (best evaluation return)
+    assert table.loc["recom_l2", "best_mse_x"] == 2.0 and table.loc["recom_l2", "best_success_rate"] == 10.0
+    assert table.loc["ppo", "best_seed"] == 0  # final rewards -41 (seed 0) and -46.25 (seed 1)
+    summary = pd.read_csv(tmp_path / "summary.csv").set_index("agent")
+    # RECOM's updates at a bound: 2 of 4, 1 of 4, 0 of 2 -> 50%, 25%, 0% -> 25% (pooled: 30%, last value: 67%)
+    assert summary.loc["recom_l2", "lr_at_bound_pct"] == pytest.approx(25.0)
+    assert np.isnan(summary.loc["ppo", "lr_at_bound_pct"])
+    shown = md_table(tmp_path / "summary.md").set_index("Agent")
+    assert shown.loc["PPO", "LR at bound (%)"] == "–" and shown.loc["RECOM + L2 PPO", "LR at bound (%)"] == "25"
+    assert summary.loc["recom_l2", "final_reward"] == pytest.approx(np.mean([-22.5, -15.0, -30.0]))
+    assert summary.loc["recom_l2", "final_dormant_ratio"] == pytest.approx(0.01)
+    assert np.isnan(summary.loc["recom_l2", "final_saturated_ratio"])
+
+
+def test_without_by_conditions_are_agents_and_look_as_before(plain_report):
+    out, stdout = plain_report
+    summary = pd.read_csv(out / "summary.csv")
+    assert list(summary["agent"]) == ["ppo", "recom_l2"] and (summary["n_seeds"] == 2).all()
+    assert "condition" not in summary and "delta_iqm" not in summary
+    assert "4 older duplicate run(s) of the same agent/wind/seed left out" in stdout
+    assert "| PPO | paper |" in (out / "summary.md").read_text() and "coef=" not in (out / "table3.md").read_text()
+    looks = style.looks({"PPO": "ppo", "L2 + PPO": "l2", "RECOM + L2 PPO": "recom_l2", "mine": "mine"})
+    assert looks["PPO"] == (style.FIXED["ppo"], "-") and looks["RECOM + L2 PPO"][0] == style.FIXED["recom_l2"]
+    assert looks["mine"] == (style.EXTRA[0], style.OTHER_DASH)
+
+
+def test_every_condition_looks_different():
+    agent_of = {f"{a} {i}": a for a in ("ppo", "l2", "mine") for i in range(12)} | {"RECOM": "recom_l2"}
+    looks = style.looks(agent_of)
+    assert len({(c, str(d)) for c, d in looks.values()}) == len(agent_of) == 37
+    assert looks["ppo 0"] == (style.FIXED["ppo"], "-") and looks["RECOM"] == (style.FIXED["recom_l2"],
+                                                                             style.DASHES["recom_l2"])
+    assert looks == style.looks(agent_of)  # the same in every figure
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--by", "agent.l2.coeff"], "unknown --by key 'agent.l2.coeff': no run logged that param"),
+    (["--by", "agent.l2.coef", "--baseline", "agent.learner=sb3"], "--baseline key 'agent.learner' is neither"),
+    (["--by", "agent.l2.coef", "--baseline", "agent.l2.coef=0.5"], "no run has agent.l2.coef=0.5 (values: 0.001, 0.01"),
+    (["--baseline", "agent=ppo"], "--baseline needs --by"),
+])
+def test_by_and_baseline_mistakes_are_one_error_line_and_exit_1(store, tmp_path, args, message):
+    code, _, stderr = run_report(store, tmp_path / "out", "--experiment", EXPERIMENT, *args)
+    lines = stderr.strip().splitlines()
+    assert code == 1 and len(lines) == 1 and lines[0].startswith("sweep.report: ") and message in lines[0], stderr
+    if "coeff" in args[1]:
+        assert "agent.l2.coef" in lines[0]  # names params that exist
+    assert not (tmp_path / "out").exists()
 
 
 def test_empty_store_is_one_error_line_and_exit_1(tmp_path):

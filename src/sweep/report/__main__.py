@@ -1,4 +1,10 @@
-"""CLI: build every figure and table of one experiment; errors are one line on stderr and exit code 1."""
+"""CLI: build every figure and table of one experiment; errors are one line on stderr and exit code 1.
+
+Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (saturated units below),
+weight_norm_W, learning_rate_W, eval_success_W and eval_crash_W (only if runs evaluated during training,
+eval.every_timesteps > 0); eval_flights_3d and eval_position_axes. Tables: table3.{md,tex,csv} (evaluation under
+wind, with the best seed's numbers), summary.{md,csv} (training outcome per condition).
+"""
 from __future__ import annotations
 
 import argparse
@@ -8,16 +14,17 @@ from pathlib import Path
 import numpy as np
 
 
-def build(experiment: str | None, sweep: str | None, out: str | None) -> Path:
+def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
+          baseline: str | None = None) -> Path:
     from mlflow.exceptions import MlflowException
 
-    from sweep.report import figures, load, stats, style, tables
+    from sweep.report import conditions, figures, load, stats, style, tables
 
     uri = load.tracking_uri()
     try:
         client = load.client_for(uri)
         exp_id, exp_name = load.pick_experiment(client, experiment)
-        runs, notes = load.load_runs(client, exp_id, sweep)
+        runs, notes = load.load_runs(client, exp_id, sweep, by)
     except MlflowException as err:
         raise load.ReportError(f"cannot read the MLflow store {uri}: {str(err).splitlines()[0]}") from err
     for note in notes:
@@ -25,6 +32,8 @@ def build(experiment: str | None, sweep: str | None, out: str | None) -> Path:
     if runs.empty:
         where = f" of sweep {sweep!r}" if sweep else ""
         raise load.ReportError(f"experiment {exp_name!r}{where} has no finished runs in {uri}")
+    runs, conds = conditions.build(runs, list(by))
+    base = conditions.parse_baseline(baseline, conds) if baseline is not None else None
 
     out_dir = Path(out) if out else Path("reports") / exp_name
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -32,34 +41,32 @@ def build(experiment: str | None, sweep: str | None, out: str | None) -> Path:
     for missing in missing_conditions(runs):
         print(f"sweep.report: missing: {missing}")
 
-    histories = load.load_histories(client, runs["run_id"])
+    histories = load.load_histories(client, runs)
     for key in load.CURVE_KEYS:
         lacking = runs.loc[~runs["run_id"].isin(histories.loc[histories["key"] == key, "run_id"]), "run_name"]
         if len(lacking):
             print(f"sweep.report: missing: {key} history in {', '.join(lacking)}")
     style.apply()
-    agents = style.ordered(runs["agent"])
-    colors = style.palette(agents)
     written = []
     for wind in sorted(runs["wind"].unique()):
         for stem in figures.CURVES:
-            written += figures.curve_figure(runs, histories, wind, stem, colors, out_dir)
+            written += figures.curve_figure(runs, histories, wind, stem, conds, out_dir)
 
     wind, picked = figures.eval_runs(runs)
     trajs = {}
-    for agent, run in picked.iterrows():
+    for cond, run in picked.iterrows():
         t = load.load_trajectories(client, run["run_id"])
         if t is None:
             print(f"sweep.report: missing: eval_trajectories.npz of {run['run_name']}")
         else:
-            trajs[agent] = t
+            trajs[cond] = t
     if trajs:
         radius = float(picked["success_radius"].astype(float).iloc[0]) if picked["success_radius"].notna().any() \
             else np.nan
-        written += figures.flights_3d(trajs, picked, wind, colors, out_dir)
-        written += figures.position_axes(trajs, picked, wind, colors, radius, out_dir)
+        written += figures.flights_3d(trajs, picked, wind, conds, out_dir)
+        written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir)
 
-    written += tables.write_tables(runs, stats.per_run_curve_stats(histories), agents, out_dir)
+    written += tables.write_tables(runs, stats.per_run_curve_stats(histories), conds, out_dir, base)
     print(f"sweep.report: wrote {len(written)} files")
     return out_dir.resolve()
 
@@ -79,11 +86,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--experiment", help="MLflow experiment (default: the one whose latest run started last)")
     parser.add_argument("--sweep", help="only runs of this sweep: its directory, or a substring of the 'sweep' tag")
     parser.add_argument("--out", help="output folder (default: reports/<experiment>/)")
+    parser.add_argument("--by", metavar="KEY[,KEY...]", type=lambda s: [k for k in s.split(",") if k], default=[],
+                        help="split each agent's runs by the values of these logged params (flattened config "
+                             "names, e.g. agent.l2.coef,agent.l2.mode or agent.learner); a condition is then "
+                             "(agent, values), labelled e.g. 'L2 + PPO (coef=0.001, mode=decoupled)'. A setting of "
+                             "a disabled component (agent.l2.* of PPO) does not apply and does not split")
+    parser.add_argument("--baseline", metavar="KEY=VALUE",
+                        help="with --by: add 'Δ IQM vs KEY=VALUE [95%% CI]' to the summary, each condition's IQM of "
+                             "the final reward minus that of the condition with KEY=VALUE and otherwise the same "
+                             "agent, --by values and wind (KEY: agent or a --by key), e.g. agent=ppo or "
+                             "agent.learner=sb3")
     args = parser.parse_args(argv)
     from sweep.report.load import ReportError
 
     try:
-        out = build(args.experiment, args.sweep, args.out)
+        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

@@ -1,6 +1,8 @@
 """Column-width figures (PNG + PDF): training curves per wind condition and the evaluation flights."""
 from __future__ import annotations
 
+import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +13,33 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 from sweep.report import stats, style
 
-CURVES = {  # file stem -> (metric, y label, scale, log y)
-    "reward": ("rollout/ep_rew_mean", "Mean episode reward", 1.0, False),
-    "dormant": ("plasticity/dormant_ratio", "Dormant units, policy net (%)", 100.0, False),
-    "learning_rate": ("train/learning_rate", "Learning rate", 1.0, True),
+
+@dataclass(frozen=True)
+class Curve:
+    """One panel of training curves: ``key`` (an MLflow metric, step = timesteps) times ``scale`` against
+    timesteps. ``percent``: y from 0 (at least 0-1, so an all-zero curve is not centred on 0); ``ylim``: fixed
+    y limits instead. ``sparse``: a metric logged at few steps (evaluations), drawn on its logged steps with a
+    marker at each; its figure is written only if some run logged it at >= 2 steps."""
+    key: str
+    ylabel: str
+    scale: float = 1.0
+    logy: bool = False
+    percent: bool = False
+    ylim: tuple[float, float] | None = None
+    sparse: bool = False
+
+
+# File stem (figure <stem>_<wind>) -> its panels, top to bottom. A figure is written for a wind condition when
+# some run of it has the first panel's metric; a lower panel is drawn when some run has its metric.
+CURVES = {
+    "reward": [Curve("rollout/ep_rew_mean", "Mean episode reward")],
+    "episode_length": [Curve("rollout/ep_len_mean", "Mean episode length (steps)")],
+    "dormant": [Curve("plasticity/dormant_ratio", "Dormant units,\npolicy net (%)", 100.0, percent=True),
+                Curve("plasticity/saturated_ratio", "Saturated units,\npolicy net (%)", 100.0, percent=True)],
+    "weight_norm": [Curve("plasticity/weight_norm", "Weight norm, policy + value nets")],
+    "learning_rate": [Curve("train/learning_rate", "Learning rate", logy=True)],
+    "eval_success": [Curve("eval/success_rate", "Evaluation success (%)", 100.0, ylim=(-3, 103), sparse=True)],
+    "eval_crash": [Curve("eval/crash_rate", "Evaluation crashes (%)", 100.0, ylim=(-3, 103), sparse=True)],
 }
 BAND = "mean over seeds; band: 95% bootstrap CI"
 
@@ -49,79 +74,118 @@ def wind_changes(speeds: list[float], segment: float, x_max: float) -> list[tupl
     return spans
 
 
-def mark_wind(ax, spans) -> None:
-    """Dotted vertical line at each wind change, the speed (m/s) written above each stretch."""
+def mark_wind(ax, spans, speeds: bool = True) -> None:
+    """Dotted vertical line at each wind change, the speed (m/s) written above each stretch (if ``speeds``)."""
     if len(spans) < 2:
         return
     left, right = ax.get_xlim()
     for start, end, speed in spans:
         if start > 0:
             ax.axvline(start, color="0.45", linestyle=":", linewidth=0.7, zorder=0)
+        if not speeds:
+            continue
         if end - start < 0.04 * (right - left):  # a sliver (e.g. the last rollout past a change): no label
             continue
         ax.text((max(start, left) + end) / 2, 1.01, f"{speed:.1f}", transform=ax.get_xaxis_transform(), ha="center",
                 va="bottom", fontsize=7, color="0.3")
-    ax.text(1.0, 1.01, " m/s", transform=ax.transAxes, ha="left", va="bottom", fontsize=7, color="0.3")
+    if speeds:
+        ax.text(1.0, 1.01, " m/s", transform=ax.transAxes, ha="left", va="bottom", fontsize=7, color="0.3")
 
 
-def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: str, colors: dict,
-                 out: Path) -> list[Path]:
-    key, ylabel, scale, logy = CURVES[stem]
-    sub = runs[runs["wind"] == wind]
-    hist = histories[(histories["key"] == key) & histories["run_id"].isin(sub["run_id"])]
+def has_data(curve: Curve, hist: pd.DataFrame) -> bool:
+    """Some run logged the metric (a sparse one at >= 2 steps: one final evaluation is no curve)."""
     if hist.empty:
+        return False
+    return not curve.sparse or int(hist.groupby("run_id")["step"].nunique().max()) >= 2
+
+
+def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: str, conds, out: Path) -> list[Path]:
+    """Figure <stem>_<wind>: per condition the mean over seeds with a 95% bootstrap band, one panel per Curve."""
+    sub = runs[runs["wind"] == wind]
+    mine = histories[histories["run_id"].isin(sub["run_id"])]
+    panels = [(c, mine[mine["key"] == c.key]) for c in CURVES[stem]]
+    if not has_data(*panels[0]):
         return []
-    grid = stats.common_grid(hist)  # a single point if every run logged ``key`` once
-    fig, ax = plt.subplots(figsize=(style.COLUMN_WIDTH, 2.3))
-    seeds = []
-    for agent in style.ordered(sub["agent"]):
-        matrix = stats.aligned(hist, key, sub.loc[sub["agent"] == agent, "run_id"], grid) * scale
-        if not len(matrix):
-            continue
-        mean, lo, hi, _ = stats.mean_band(matrix)
-        ax.plot(grid, mean, color=colors[agent], linestyle=style.dashes(agent), linewidth=1.2,
-                marker="o" if len(grid) == 1 else None, markersize=3,
-                label=f"{style.label(agent)} (n={len(matrix)})")
-        ax.fill_between(grid, lo, hi, color=colors[agent], alpha=0.2, linewidth=0)
-        seeds.append(len(matrix))
-    first = sub.iloc[0]
-    ax.set_xlim(0, grid[-1] * (1.05 if len(grid) == 1 else 1.0))
-    mark_wind(ax, wind_changes(first["speeds"], first["segment_steps"], grid[-1]))
-    timestep_axis(ax, grid[-1])
-    ax.set_ylabel(ylabel)
-    if logy:
-        ax.set_yscale("log")
-        ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible
-    if stem == "dormant":  # a percentage: from 0, at least 0-1% so an all-zero curve is not centred on 0
-        ax.set_ylim(0, max(1.0, ax.get_ylim()[1]))
-    ax.grid(True)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=3, frameon=False, handlelength=1.5,
-              columnspacing=1.0, title=BAND if max(seeds) > 1 else "one seed per agent")
+    panels = [p for p in panels if has_data(*p)]
+    x_max = max(float(h["step"].max()) for _, h in panels)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(style.COLUMN_WIDTH, 2.3 + 1.4 * (len(panels) - 1)),
+                             sharex=True, squeeze=False)
+    axes, seeds = axes[:, 0], {}
+    spans = wind_changes(sub.iloc[0]["speeds"], sub.iloc[0]["segment_steps"], x_max)
+    for i, (ax, (curve, hist)) in enumerate(zip(axes, panels)):
+        seeds.update(_panel(ax, curve, hist, sub, conds))
+        ax.set_xlim(0, x_max * (1.05 if len(stats.common_grid(hist)) == 1 or curve.sparse else 1.0))
+        mark_wind(ax, spans, speeds=i == 0)
+    timestep_axis(axes[-1], x_max)
+    drop = 0.22 if len(axes) == 1 else 0.39 / (axes[-1].get_position().height * fig.get_figheight())
+    handles, labels = axes[0].get_legend_handles_labels()  # the top panel's conditions, below the last panel
+    longest = max(len(label) for label in labels)
+    ncol = 3 if not conds.by or longest <= 18 else 2 if longest <= 30 else 1
+    one = "one seed per condition" if conds.by else "one seed per agent"
+    axes[-1].legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -drop), ncol=ncol, frameon=False,
+                    handlelength=1.5, columnspacing=1.0, title=BAND if max(seeds.values()) > 1 else one)
+    if len(axes) > 1:
+        fig.align_ylabels(axes)
     return save(fig, out, f"{stem}_{wind}")
 
 
+def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> dict[str, int]:
+    """Draw one Curve for each condition of ``sub``; returns condition -> seeds drawn."""
+    grid = np.unique(hist["step"].to_numpy(dtype=float)) if curve.sparse else stats.common_grid(hist)
+    seeds = {}
+    for cond in [c for c in conds.order if c in set(sub["condition"])]:
+        matrix = stats.aligned(hist, curve.key, sub.loc[sub["condition"] == cond, "run_id"], grid) * curve.scale
+        if not len(matrix):
+            continue
+        mean, lo, hi, _ = stats.mean_band(matrix)
+        ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2,
+                marker="o" if len(grid) == 1 or curve.sparse else None, markersize=3,
+                label=textwrap.fill(f"{cond} (n={len(matrix)})", 56, subsequent_indent="  "))
+        ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0)
+        seeds[cond] = len(matrix)
+    ax.set_ylabel(curve.ylabel)
+    if curve.logy:
+        ax.set_yscale("log")
+        ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible
+    if curve.percent:
+        ax.set_ylim(0, max(1.0, ax.get_ylim()[1]))
+    if curve.ylim:
+        ax.set_ylim(*curve.ylim)
+    ax.grid(True)
+    return seeds
+
+
 def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame]:
-    """Per agent, the best-return seed among runs trained with wind 'paper' (else the first condition present)."""
+    """Per condition, the best-return seed among runs trained with wind 'paper' (else the first wind present)."""
     wind = "paper" if "paper" in set(runs["wind"]) else sorted(runs["wind"].unique())[0]
     sub = runs[runs["wind"] == wind].sort_values("eval/return", ascending=False, na_position="last")
-    return wind, sub.drop_duplicates("agent").set_index("agent")
+    return wind, sub.drop_duplicates("condition").set_index("condition")
 
 
-def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, out: Path) -> list[Path]:
-    agents = [a for a in style.ordered(trajs) if a in trajs]
-    cols = min(len(agents), 2)
-    rows = int(np.ceil(len(agents) / cols))
-    spare = rows * cols > len(agents)  # the legend goes into the empty panel, else below the panels
+def _title(cond: str) -> str:
+    """A condition's label for a narrow panel: the agent, then each --by value on a line of its own."""
+    agent, _, values = cond.partition(" (")
+    return "\n".join([agent, *values[:-1].split(", ")]) if values.endswith(")") else cond
+
+
+def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path) -> list[Path]:
+    shown = [c for c in conds.order if c in trajs]
+    cols = min(len(shown), 2)
+    rows = int(np.ceil(len(shown) / cols))
+    spare = rows * cols > len(shown)  # the legend goes into the empty panel, else below the panels
     legend_h = 0.05 if spare else 0.6  # inches below the panels for the legend
-    fig = plt.figure(figsize=(style.COLUMN_WIDTH, 1.75 * rows + 0.1 + legend_h))
+    titles = {c: textwrap.fill(f"{c}, seed {picked.loc[c, 'seed']}", 34)
+              + f"\nsuccess {100 * np.mean(trajs[c]['success']):.0f}%" for c in shown}
+    extra = max(t.count("\n") for t in titles.values()) - 1  # title lines beyond two (long --by labels)
+    fig = plt.figure(figsize=(style.COLUMN_WIDTH, (1.75 + 0.12 * extra) * rows + 0.1 + legend_h))
     bound = max(float(np.nanmax(np.abs(t["positions"]))) for t in trajs.values())
     bound = min(np.ceil(bound), 4.0)
-    for i, agent in enumerate(agents):
-        t, run = trajs[agent], picked.loc[agent]
+    for i, cond in enumerate(shown):
+        t = trajs[cond]
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
         for pos, crashed in zip(t["positions"], t["crashed"]):
-            ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], color=colors[agent], linewidth=0.7, alpha=0.8)
-            ax.scatter(*pos[0], color=colors[agent], s=6, marker="o", depthshade=False)
+            ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], color=conds.color(cond), linewidth=0.7, alpha=0.8)
+            ax.scatter(*pos[0], color=conds.color(cond), s=6, marker="o", depthshade=False)
             if crashed:
                 end = pos[~np.isnan(pos[:, 0])][-1]
                 ax.scatter(*end, color="k", s=10, marker="x", depthshade=False, linewidths=0.8)
@@ -134,15 +198,14 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, out: 
         ax.set_xlabel("x (m)", fontsize=7)
         ax.set_ylabel("y (m)", fontsize=7)
         ax.set_zlabel("z (m)", fontsize=7)
-        ax.set_title(f"{style.label(agent)}, seed {run['seed']}\nsuccess {100 * np.mean(t['success']):.0f}%",
-                     fontsize=7, pad=-2)
+        ax.set_title(titles[cond], fontsize=7, pad=-2)
         ax.view_init(elev=22, azim=-60)
     wind_vec = next(iter(trajs.values()))["wind"]
     handles = [Line2D([], [], color="0.3", marker="o", linestyle="-", markersize=3, label="start"),
                Line2D([], [], color="k", marker="*", linestyle="", markersize=6, label="target"),
                Line2D([], [], color="k", marker="x", linestyle="", markersize=4, label="crash")]
     title = (f"Evaluation wind {np.linalg.norm(wind_vec):g} m/s along {_direction(wind_vec)}\n"
-             f"agents trained with wind '{wind}'\nbest-return seed per agent")
+             f"agents trained with wind '{wind}'\nbest-return seed per {'condition' if conds.by else 'agent'}")
     if spare:
         fig.legend(handles=handles, loc="center", ncol=1, frameon=False, title=title,
                    bbox_to_anchor=(0.75, 0.5 / rows))
@@ -150,7 +213,7 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, out: 
         fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False, bbox_to_anchor=(0.5, 0.0),
                    title=title.replace("'\nbest", "', best"))
     fig.subplots_adjust(left=0.02, right=0.95, top=0.93, bottom=legend_h / fig.get_figheight(), wspace=0.15,
-                        hspace=0.25)
+                        hspace=0.25 + 0.1 * extra)
     return save(fig, out, "eval_flights_3d")
 
 
@@ -162,12 +225,13 @@ def _direction(v: np.ndarray) -> str:
     return ("+" if v[axis] > 0 else "-") + "xyz"[axis] if np.count_nonzero(v) == 1 else str(np.round(v, 2))
 
 
-def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, radius: float, out: Path) -> list[Path]:
-    agents = [a for a in style.ordered(trajs) if a in trajs]
-    fig, axes = plt.subplots(3, len(agents), figsize=(style.COLUMN_WIDTH, 3.4), sharex=True, sharey="row",
+def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, conds, radius: float, out: Path) -> list[Path]:
+    shown = [c for c in conds.order if c in trajs]
+    fig, axes = plt.subplots(3, len(shown), figsize=(style.COLUMN_WIDTH, 3.4), sharex=True, sharey="row",
                              squeeze=False)
-    for j, agent in enumerate(agents):
-        t = trajs[agent]
+    title_size = 7 if len(shown) <= 3 else 6 if len(shown) == 4 else 5  # narrow columns
+    for j, cond in enumerate(shown):
+        t = trajs[cond]
         time = np.arange(t["positions"].shape[1]) * float(t["dt"])
         axes[0, j].set_xlim(0, time[-1])
         for i in range(3):
@@ -176,11 +240,11 @@ def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, colors: dict, ra
                 ax.axhspan(-radius, radius, color="0.85", linewidth=0, zorder=0)
             ax.axhline(0, color="0.5", linewidth=0.5, zorder=0)
             for pos in t["positions"]:
-                ax.plot(time, pos[:, i], color=colors[agent], linewidth=0.6, alpha=0.8)
+                ax.plot(time, pos[:, i], color=conds.color(cond), linewidth=0.6, alpha=0.8)
             if j == 0:
                 ax.set_ylabel(f"{'xyz'[i]} (m)")
             ax.yaxis.set_major_locator(MaxNLocator(4))
-        axes[0, j].set_title(f"{style.label(agent)}\nseed {picked.loc[agent, 'seed']}", fontsize=7)
+        axes[0, j].set_title(f"{_title(cond)}\nseed {picked.loc[cond, 'seed']}", fontsize=title_size)
         axes[-1, j].set_xlabel("Time (s)")
         axes[-1, j].xaxis.set_major_locator(MaxNLocator(3, steps=[1, 2, 5]))  # no label on the right edge
     note = f"\ngrey band: success radius ±{radius:g} m" if np.isfinite(radius) else ""

@@ -1,12 +1,13 @@
 """Read one experiment of the MLflow store back into pandas (the only module that reads the store).
 
 * ``runs``: one row per FINISHED run: run_id, agent, wind, seed, sweep, the wind schedule and eval params,
-  and the final ``eval/*`` metrics.
+  the final ``eval/*`` metrics, the names of its metrics (``logged``) and one column per ``--by`` param.
 * ``histories``: long table (run_id, key, step, value) of the metric histories the report plots.
 * ``trajectories``: the ``eval_trajectories.npz`` artifact of one run.
 """
 from __future__ import annotations
 
+import difflib
 import json
 import os
 import tempfile
@@ -22,13 +23,41 @@ from mlflow.tracking import MlflowClient  # noqa: E402
 
 EVAL_KEYS = ["eval/success_rate", "eval/mse_x", "eval/mse_y", "eval/mse_z", "eval/final_distance",
              "eval/return", "eval/crash_rate"]
-CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate"]
+CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate", "rollout/ep_len_mean",
+              "plasticity/weight_norm", "plasticity/saturated_ratio"]  # every run logs these
+OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate"]  # only RECOM / eval during training
+NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius"}
 
 
 class ReportError(Exception):
     """A problem the user must fix; reported as one line, exit code 1."""
+
+
+def by_value(params: dict[str, str], key: str) -> str:
+    """The run's logged value of ``key``; NA if the run lacks it or an enclosing component is disabled
+    (an ``enabled`` param above the key is false, e.g. ``agent.l2.coef`` of a run with ``agent.l2.enabled=False``)."""
+    parts = key.split(".")
+    for i in range(1, len(parts)):
+        flag = ".".join(parts[:i]) + ".enabled"
+        if flag != key and str(params.get(flag, "True")).lower() == "false":
+            return NA
+    return params.get(key, NA)
+
+
+def check_keys(by: list[str], available: set[str]) -> None:
+    """One-line error for a --by key that no run logged, naming a few params that exist."""
+    for key in by:
+        if key in ("agent", "wind", "seed"):
+            raise ReportError(f"--by {key}: conditions always differ in agent and wind and aggregate over seeds; "
+                              "--by takes other logged params, e.g. agent.l2.coef")
+        if key not in available:
+            names = sorted(available)
+            hints = (difflib.get_close_matches(key, names, n=4, cutoff=0.6)
+                     or [n for n in names if n.startswith("agent.")][:4] or names[:4])
+            raise ReportError(f"unknown --by key {key!r}: no run logged that param "
+                              f"(params are flattened config names, e.g. {', '.join(hints)})")
 
 
 def tracking_uri() -> str:
@@ -82,13 +111,16 @@ def matches_sweep(tag: str, sweep: str | None) -> bool:
     return sweep in tag
 
 
-def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None) -> tuple[pd.DataFrame, list[str]]:
-    """(finished runs as a DataFrame, notes about runs left out)."""
-    rows, notes = [], []
+def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
+              by: list[str] = ()) -> tuple[pd.DataFrame, list[str]]:
+    """(finished runs as a DataFrame, notes about runs left out). Of several runs of one agent, ``by`` values,
+    wind and seed only the one that started last is kept."""
+    rows, notes, available = [], [], set()
     for run in _all_runs(client, exp_id):
         tags, params, metrics = run.data.tags, run.data.params, run.data.metrics
         if not matches_sweep(tags.get("sweep", ""), sweep):
             continue
+        available.update(params)
         name = tags.get("run_name", run.info.run_id[:8])
         if run.info.status != "FINISHED":
             notes.append(f"left out run {name} ({run.info.status})")
@@ -98,26 +130,31 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None) -> tu
                "start_time": run.info.start_time}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
         row.update({key: metrics.get(key, np.nan) for key in EVAL_KEYS})
+        row.update({key: by_value(params, key) for key in by})
+        row["logged"] = frozenset(metrics)
         rows.append(row)
+    if available:
+        check_keys(list(by), available)
     df = pd.DataFrame(rows)
     if df.empty:
         return df, notes
     df["segment_steps"] = pd.to_numeric(df["segment_steps"], errors="coerce")
     df["speeds"] = df["speeds"].map(lambda s: json.loads(s) if isinstance(s, str) else [])
     df = df.sort_values(["agent", "wind", "seed", "start_time"])
-    dupes = df.duplicated(["agent", "wind", "seed"], keep="last")
+    dupes = df.duplicated(["agent", *by, "wind", "seed"], keep="last")
     if dupes.any():
-        notes.append(f"{int(dupes.sum())} older duplicate run(s) of the same agent/wind/seed left out "
+        what = f"agent/{'/'.join(by)}/wind/seed" if by else "agent/wind/seed"
+        notes.append(f"{int(dupes.sum())} older duplicate run(s) of the same {what} left out "
                      "(use --sweep to pick one sweep)")
         df = df[~dupes]
     return df.reset_index(drop=True), notes
 
 
-def load_histories(client: MlflowClient, run_ids, keys=CURVE_KEYS) -> pd.DataFrame:
+def load_histories(client: MlflowClient, runs: pd.DataFrame, keys=CURVE_KEYS + OPTIONAL_KEYS) -> pd.DataFrame:
     """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value)."""
     frames = []
-    for run_id in run_ids:
-        for key in keys:
+    for run_id, logged in zip(runs["run_id"], runs["logged"]):
+        for key in [k for k in keys if k in logged]:
             hist = client.get_metric_history(run_id, key)
             if hist:
                 frames.append(pd.DataFrame({"run_id": run_id, "key": key, "step": [m.step for m in hist],

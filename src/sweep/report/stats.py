@@ -4,6 +4,8 @@ Statistics used (all over seeds; a seed is one run):
 * curve bands: 95% percentile-bootstrap CI of the mean at each grid point (``scipy.stats.bootstrap``);
 * Table III: mean +- half-width of the 95% Student-t CI (n - 1 degrees of freedom);
 * IQM: rliable's ``metrics.aggregate_iqm`` with a 95% stratified-bootstrap percentile CI;
+* IQM difference to a baseline condition: 95% percentile-bootstrap CI, both conditions' runs resampled
+  independently;
 * probability of improvement: rliable's ``metrics.probability_of_improvement`` (Mann-Whitney U / (n_x n_y)),
   with a 95% CI from independent bootstrap resampling of both agents' runs.
 
@@ -86,17 +88,24 @@ def collapse(values: np.ndarray) -> float:
     return float((s.cummax() - s).max()) if len(s) else np.nan
 
 
+FINALS = {"final_reward": "rollout/ep_rew_mean", "final_dormant": "plasticity/dormant_ratio",
+          "final_saturated": "plasticity/saturated_ratio", "final_weight_norm": "plasticity/weight_norm"}
+
+
 def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
-    """One row per run: final reward, final dormant ratio, collapse of the reward curve."""
+    """One row per run: final value of each FINALS curve, collapse of the reward curve, and ``at_bound``: the
+    share of RECOM's LR updates clipped to a bound (mean of the recom/at_bound history; NaN without one)."""
     rows = []
     for run_id, h in histories.groupby("run_id"):
-        rew = h[h["key"] == "rollout/ep_rew_mean"]
-        dor = h[h["key"] == "plasticity/dormant_ratio"]
-        rows.append({"run_id": run_id,
-                     "final_reward": final_value(rew["step"].to_numpy(), rew["value"].to_numpy()),
-                     "final_dormant": final_value(dor["step"].to_numpy(), dor["value"].to_numpy()),
-                     "collapse": collapse(rew["value"].to_numpy())})
-    return pd.DataFrame(rows, columns=["run_id", "final_reward", "final_dormant", "collapse"])
+        row = {"run_id": run_id}
+        for column, key in FINALS.items():
+            k = h[h["key"] == key]
+            row[column] = final_value(k["step"].to_numpy(), k["value"].to_numpy())
+        row["collapse"] = collapse(h.loc[h["key"] == "rollout/ep_rew_mean", "value"].to_numpy())
+        bound = h.loc[h["key"] == "recom/at_bound", "value"]
+        row["at_bound"] = float(bound.mean()) if len(bound) else np.nan
+        rows.append(row)
+    return pd.DataFrame(rows, columns=["run_id", *FINALS, "collapse", "at_bound"])
 
 
 def mean_t_ci(values) -> tuple[float, float, int]:
@@ -121,6 +130,24 @@ def iqm_ci(scores) -> tuple[float, float, float]:
     if len(x) < 2:
         return point, np.nan, np.nan
     ci = _bootstrap((x,), _rowwise(metrics.aggregate_iqm), vectorized=True).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+def iqm_diff_ci(scores_x, scores_y) -> tuple[float, float, float]:
+    """IQM(X) - IQM(Y) over runs and its 95% percentile-bootstrap CI (both samples resampled independently;
+    NaN CI if either has fewer than 2 runs)."""
+    x, y = (np.asarray(s, dtype=float) for s in (scores_x, scores_y))
+    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+    if len(x) == 0 or len(y) == 0:
+        return np.nan, np.nan, np.nan
+    point = float(metrics.aggregate_iqm(x[:, None]) - metrics.aggregate_iqm(y[:, None]))
+    if len(x) < 2 or len(y) < 2:
+        return point, np.nan, np.nan
+
+    def diff(a, b, axis=-1):  # aggregate_iqm (a 25% trimmed mean) of each resample, vectorized
+        return stats.trim_mean(a, 0.25, axis=axis) - stats.trim_mean(b, 0.25, axis=axis)
+
+    ci = _bootstrap((x, y), diff, vectorized=True, paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 
 from sweep.report import stats
-from sweep.report.style import label
+from sweep.report.conditions import Conditions, baseline_of
 
 TABLE3 = [("eval/success_rate", "success_rate", 100.0, "Success rate (%)"),
           ("eval/mse_x", "mse_x", 1.0, "MSE x (m²)"),
@@ -42,63 +42,129 @@ def latex(df: pd.DataFrame, caption: str, label_: str) -> str:
                          caption=caption, label=label_, position="htbp")
 
 
-def table3(runs: pd.DataFrame, agents: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(numbers: one row per agent x wind with mean / ci95 / n per metric, display table)."""
+def _ordered_groups(runs: pd.DataFrame, conds: Conditions):
+    """(wind, condition, its runs) with wind 'paper' first, then the other winds, conditions in display order."""
+    rank = {c: i for i, c in enumerate(conds.order)}
+    groups = runs.groupby(["wind", "condition"], sort=False)
+    for wind, cond in sorted(groups.groups, key=lambda k: (k[0] != "paper", k[0], rank[k[1]])):
+        yield wind, cond, groups.get_group((wind, cond))
+
+
+def _identity(conds: Conditions, cond: str, wind: str) -> dict:
+    """The CSV columns that name a condition: agent, the --by values and the label (with --by), wind."""
+    row = conds.table.loc[cond]
+    return {"agent": row["agent"], **{k: row[k] for k in conds.by}, **({"condition": cond} if conds.by else {}),
+            "wind": wind}
+
+
+def best_seed(g: pd.DataFrame) -> pd.Series | None:
+    """The run with the highest final training reward (lowest seed on a tie); None if no run has one."""
+    ranked = g[np.isfinite(g["final_reward"])].sort_values(["final_reward", "seed"], ascending=[False, True])
+    return ranked.iloc[0] if len(ranked) else None
+
+
+def table3(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(numbers: one row per condition x wind with mean / ci95 / n per metric and the best seed's values,
+    display table)."""
+    df = runs.merge(per_run[["run_id", "final_reward"]], on="run_id", how="left")
     numbers, display = [], []
-    for (wind, agent), g in runs.groupby(["wind", "agent"], sort=False):
-        num = {"agent": agent, "wind": wind, "n_seeds": len(g)}
-        shown = {"Control policy": label(agent), "Training wind": wind}
+    for wind, cond, g in _ordered_groups(df, conds):
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g)}
+        shown = {"Control policy": cond, "Training wind": wind}
         for key, short, scale, title in TABLE3:
             mean, half, _ = stats.mean_t_ci(g[key] * scale)
             num[f"{short}_mean"], num[f"{short}_ci95"] = mean, half
             shown[title] = _pm(mean, half, 0 if short == "success_rate" else 2)
         shown["Seeds"] = len(g)
+        best = best_seed(g)
+        num["best_seed"] = int(best["seed"]) if best is not None else np.nan
+        num["best_final_reward"] = best["final_reward"] if best is not None else np.nan
+        for key, short, scale, _ in TABLE3:
+            num[f"best_{short}"] = best[key] * scale if best is not None else np.nan
+        shown["Best seed"] = num["best_seed"] if best is not None else "–"
+        shown["Best: success (%)"] = _pm(num["best_success_rate"], np.nan, 0)
+        shown["Best: MSE x/y/z (m²)"] = ("–" if best is None else
+                                         " / ".join(f"{num[f'best_mse_{a}']:.2f}" for a in "xyz"))
         numbers.append(num)
         display.append(shown)
-    order = {a: i for i, a in enumerate(agents)}
-    key = lambda d: (d["wind"] != "paper", d["wind"], order.get(d["agent"], 99))  # noqa: E731
-    idx = sorted(range(len(numbers)), key=lambda i: key(numbers[i]))
-    return pd.DataFrame([numbers[i] for i in idx]), pd.DataFrame([display[i] for i in idx])
-
-
-def summary(runs: pd.DataFrame, per_run: pd.DataFrame, agents: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Per agent x wind: final reward, final dormant ratio, collapse, seeds, IQM [CI], P(improve over ppo) [CI]."""
-    df = runs.merge(per_run, on="run_id", how="left")
-    numbers, display = [], []
-    for wind in sorted(df["wind"].unique(), key=lambda w: (w != "paper", w)):
-        dw = df[df["wind"] == wind]
-        base = dw.loc[dw["agent"] == "ppo", "final_reward"].to_numpy()
-        for agent in [a for a in agents if a in set(dw["agent"])]:
-            g = dw[dw["agent"] == agent]
-            iqm, iqm_lo, iqm_hi = stats.iqm_ci(g["final_reward"])
-            poi = stats.poi_ci(g["final_reward"], base) if agent != "ppo" and len(base) else (np.nan,) * 3
-            num = {"agent": agent, "wind": wind, "n_seeds": len(g),
-                   "final_reward": g["final_reward"].mean(), "final_dormant_ratio": g["final_dormant"].mean(),
-                   "collapse": g["collapse"].mean(), "iqm_final_reward": iqm, "iqm_ci_low": iqm_lo,
-                   "iqm_ci_high": iqm_hi, "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1],
-                   "p_improve_ci_high": poi[2]}
-            numbers.append(num)
-            display.append({"Agent": label(agent), "Wind": wind, "Seeds": len(g),
-                            "Final reward": f"{num['final_reward']:.1f}",
-                            "Final dormant (%)": f"{100 * num['final_dormant_ratio']:.2f}",
-                            "Collapse": f"{num['collapse']:.1f}",
-                            "IQM final reward [95% CI]": _interval(iqm, iqm_lo, iqm_hi, 1),
-                            "P(> PPO) [95% CI]": _interval(*poi, 2)})
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
-def write_tables(runs: pd.DataFrame, per_run: pd.DataFrame, agents: list[str], out: Path) -> list[Path]:
-    t3_numbers, t3_display = table3(runs, agents)
+def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
+            baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per condition x wind: seeds, final reward / dormant / saturated share / weight norm, collapse, share of
+    RECOM's LR updates at a bound, final evaluation success and crashes, IQM [CI], P(improve over PPO) [CI], and
+    with ``baseline`` = (KEY, VALUE) the IQM difference to the baseline condition [CI]."""
+    df = runs.merge(per_run, on="run_id", how="left")
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        dw = df[df["wind"] == wind]
+        present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
+        scores = lambda c: dw.loc[dw["condition"] == c, "final_reward"]  # noqa: E731
+        ppo = baseline_of(present, cond, "agent", "ppo") if "ppo" in set(present["agent"]) else None
+        iqm, iqm_lo, iqm_hi = stats.iqm_ci(g["final_reward"])
+        poi = stats.poi_ci(g["final_reward"], scores(ppo)) if ppo is not None else (np.nan,) * 3
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g),
+               "final_reward": g["final_reward"].mean(), "final_dormant_ratio": g["final_dormant"].mean(),
+               "final_saturated_ratio": g["final_saturated"].mean(), "final_weight_norm": g["final_weight_norm"].mean(),
+               "collapse": g["collapse"].mean(), "lr_at_bound_pct": 100 * g["at_bound"].mean(),
+               "eval_success_pct": 100 * g["eval/success_rate"].mean(),
+               "eval_crash_pct": 100 * g["eval/crash_rate"].mean(),
+               "iqm_final_reward": iqm, "iqm_ci_low": iqm_lo, "iqm_ci_high": iqm_hi,
+               "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1], "p_improve_ci_high": poi[2]}
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
+                 "Final reward": f"{num['final_reward']:.1f}",
+                 "Final dormant (%)": f"{100 * num['final_dormant_ratio']:.2f}",
+                 "Final saturated (%)": _fixed(100 * num["final_saturated_ratio"], 2),
+                 "Final weight norm": _fixed(num["final_weight_norm"], 1),
+                 "Collapse": f"{num['collapse']:.1f}",
+                 "LR at bound (%)": _fixed(num["lr_at_bound_pct"], 0),
+                 "Eval success (%)": _fixed(num["eval_success_pct"], 0),
+                 "Eval crash (%)": _fixed(num["eval_crash_pct"], 0),
+                 "IQM final reward [95% CI]": _interval(iqm, iqm_lo, iqm_hi, 1),
+                 "P(> PPO) [95% CI]": _interval(*poi, 2)}
+        if baseline is not None:
+            key, value = baseline
+            base = baseline_of(present, cond, key, value)
+            delta = stats.iqm_diff_ci(g["final_reward"], scores(base)) if base is not None else (np.nan,) * 3
+            num.update({"baseline": base if base is not None else "", "delta_iqm": delta[0],
+                        "delta_iqm_ci_low": delta[1], "delta_iqm_ci_high": delta[2]})
+            shown[f"Δ IQM vs {key}={value} [95% CI]"] = _interval(*delta, 1) if base is not None else ""
+        numbers.append(num)
+        display.append(shown)
+    return pd.DataFrame(numbers), pd.DataFrame(display)
+
+
+def _fixed(value: float, digits: int) -> str:
+    return f"{value:.{digits}f}" if np.isfinite(value) else "–"
+
+
+def write_tables(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions, out: Path,
+                 baseline: tuple[str, str] | None = None) -> list[Path]:
+    t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
+    best = ("Best = the seed whose final training reward (mean episode reward over the last "
+            f"{stats.FINAL_FRACTION:.0%} of timesteps) is highest in its condition, as the paper evaluated "
+            "\"the policy that produced the highest reward\"; its success rate and per-axis MSE.")
     (out / "table3.md").write_text(
-        "Evaluation under constant wind (Table III): mean ± 95% Student-t CI over seeds.\n\n" + markdown(t3_display))
+        f"Evaluation under constant wind (Table III): mean ± 95% Student-t CI over seeds. {best}\n\n"
+        + markdown(t3_display))
     (out / "table3.tex").write_text(latex(t3_display, "Evaluation under wind: success rate and per-axis position "
-                                          "MSE, mean $\\pm$ 95\\% CI over seeds.", "tab:eval"))
-    s_numbers, s_display = summary(runs, per_run, agents)
+                                          "MSE, mean $\\pm$ 95\\% CI over seeds, and the values of the seed "
+                                          "with the highest final training reward.", "tab:eval"))
+    s_numbers, s_display = summary(runs, per_run, conds, baseline)
     s_numbers.to_csv(out / "summary.csv", index=False)
-    note = (f"Final = mean over the last {stats.FINAL_FRACTION:.0%} of training timesteps; collapse = largest drop "
-            "of the reward curve below its running peak (mean over seeds); IQM with 95% stratified-bootstrap CI "
-            "(rliable); P(> PPO) = rliable probability of improvement of the final reward over PPO "
-            "in the same wind condition.\n\n")
-    (out / "summary.md").write_text(note + markdown(s_display))
+    note = (f"Final = mean over the last {stats.FINAL_FRACTION:.0%} of training timesteps (mean over seeds); "
+            "collapse = largest drop of the reward curve below its running peak; saturated = share of policy "
+            "activations with |h| above plasticity.saturation; weight norm = L2 norm of all policy and value "
+            "parameters; LR at bound = share of RECOM's learning-rate updates clipped to lr_min or lr_max "
+            "(– without RECOM); eval success / crash = the final evaluation's rates; IQM with 95% "
+            "stratified-bootstrap CI (rliable); P(> PPO) = rliable probability of improvement of the final reward "
+            "over PPO in the same wind condition.")
+    if baseline is not None:
+        key, value = baseline
+        note += (f" Δ IQM vs {key}={value} = IQM of the final reward minus that of the condition with "
+                 f"{key}={value} and otherwise the same agent and --by values in the same wind (a setting that does "
+                 "not apply to it matches any), 95% percentile-bootstrap CI resampling both conditions' seeds.")
+    (out / "summary.md").write_text(note + "\n\n" + markdown(s_display))
     return [out / f for f in ("table3.csv", "table3.md", "table3.tex", "summary.csv", "summary.md")]

@@ -1,0 +1,122 @@
+"""Conditions: what the report aggregates over seeds, an agent plus the values of the ``--by`` params.
+
+Without ``--by`` a condition is an agent. With ``--by agent.l2.coef,agent.l2.mode`` it is (agent, coef, mode),
+labelled "L2 + PPO (coef=0.001, mode=decoupled)" (a key is shown by its last path component, more components
+where two keys would read the same). A setting of a component the run switched off (an enclosing ``enabled``
+param is false, e.g. ``agent.l2.coef`` of a PPO run, whose ``agent.l2.enabled`` is False) does not apply: it is
+``NA``, left out of the label, and does not split the agent's runs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pandas as pd
+
+from sweep.report import style
+from sweep.report.load import NA, ReportError
+
+
+def short_names(keys: list[str]) -> dict[str, str]:
+    """Last path component of each key; more components for keys that would otherwise read the same."""
+    depth = dict.fromkeys(keys, 1)
+    while True:
+        names = {k: ".".join(k.split(".")[-depth[k]:]) for k in keys}
+        clash = [k for k in keys if list(names.values()).count(names[k]) > 1 and depth[k] < len(k.split("."))]
+        if not clash:
+            return names
+        for k in clash:
+            depth[k] += 1
+
+
+def same(a: str, b: str) -> bool:
+    """Equal as text, or as numbers (so that 1e-3 names the logged 0.001)."""
+    if a == b:
+        return True
+    try:
+        return float(a) == float(b)
+    except (TypeError, ValueError):
+        return False
+
+
+def _value_order(v: str) -> tuple:
+    """NA first, then numbers numerically, then text."""
+    if v == NA:
+        return (0, 0.0, "")
+    try:
+        return (1, float(v), "")
+    except ValueError:
+        return (2, 0.0, v)
+
+
+@dataclass
+class Conditions:
+    """The conditions of a report: ``table`` has one row per condition (index: its label; columns: agent and
+    the --by keys), in display order; ``looks`` maps a label to its (colour, line style)."""
+    by: list[str]
+    table: pd.DataFrame
+    looks: dict[str, tuple]
+
+    @property
+    def order(self) -> list[str]:
+        return list(self.table.index)
+
+    def color(self, cond: str) -> str:
+        return self.looks[cond][0]
+
+    def dash(self, cond: str):
+        return self.looks[cond][1]
+
+
+def build(runs: pd.DataFrame, by: list[str]) -> tuple[pd.DataFrame, Conditions]:
+    """(``runs`` with a ``condition`` column holding the label, the Conditions of all runs)."""
+    short = short_names(by)
+    fields = ["agent", *by]
+    table = runs[fields].drop_duplicates().copy()
+    rank = {a: i for i, a in enumerate(style.ordered(table["agent"]))}
+    table = table.sort_values(fields, key=lambda col: col.map(rank) if col.name == "agent" else col.map(_value_order))
+    table.index = [style.label(row["agent"]) + _suffix(row, by, short) for _, row in table.iterrows()]
+    labels = {tuple(row[fields]): cond for cond, row in table.iterrows()}
+    runs = runs.assign(condition=[labels[tuple(r)] for r in runs[fields].itertuples(index=False)])
+    return runs, Conditions(by, table, style.looks(dict(zip(table.index, table["agent"]))))
+
+
+def _suffix(row: pd.Series, by: list[str], short: dict[str, str]) -> str:
+    shown = [f"{short[k]}={row[k]}" for k in by if row[k] != NA]
+    return f" ({', '.join(shown)})" if shown else ""
+
+
+def parse_baseline(text: str, conds: Conditions) -> tuple[str, str]:
+    """(KEY, the logged VALUE) of ``--baseline KEY=VALUE``; one-line errors for what cannot be a baseline."""
+    if not conds.by:
+        raise ReportError("--baseline needs --by (it compares conditions that differ in one --by key or the agent)")
+    key, sep, value = text.partition("=")
+    if not sep or not key or not value:
+        raise ReportError(f"--baseline {text!r}: expected KEY=VALUE, e.g. agent=ppo")
+    if key not in ["agent", *conds.by]:
+        raise ReportError(f"--baseline key {key!r} is neither 'agent' nor a --by key ({', '.join(conds.by)})")
+    values = sorted(set(conds.table[key]) - {NA}, key=_value_order)
+    match = [v for v in values if same(v, value)]
+    if not match:
+        raise ReportError(f"--baseline {text!r}: no run has {key}={value} (values: {', '.join(values)})")
+    return key, match[0]
+
+
+def baseline_of(table: pd.DataFrame, cond: str, key: str, value: str) -> str | None:
+    """The condition of ``table`` equal to ``cond`` in every field but ``key``, whose value is ``value``.
+
+    A field that does not apply to the candidate (NA) matches any value (PPO is the baseline of every L2
+    setting); among several candidates the one with the most exactly equal fields wins. None for a condition
+    that is itself a baseline or that has none in ``table``.
+    """
+    row = table.loc[cond]
+    if same(row[key], value):
+        return None
+    fields = [f for f in table.columns if f != key]
+    best, score = None, -1
+    for other, cand in table[table[key] == value].iterrows():
+        if all(cand[f] == row[f] or cand[f] == NA for f in fields):
+            exact = sum(cand[f] == row[f] for f in fields)
+            if exact > score:
+                best, score = other, exact
+    return best
+
