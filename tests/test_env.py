@@ -204,3 +204,16 @@ def test_observation_scale_multiplies_velocity_and_body_rates_only():
     np.testing.assert_allclose(o2[:, 6:10], o1[:, 6:10])
     np.testing.assert_allclose(o2[:, 10:13], 0.1 * o1[:, 10:13], rtol=1e-6)
     assert np.abs(o1[:, 10:13]).max() > 1.0
+
+
+def test_reward_scale_scales_what_the_learner_gets_not_the_logged_return():
+    kwargs = dict(n_envs=2, wind=WindSchedule(speeds=[1.0]), seed=2, episode_seconds=0.3)
+    plain, scaled = HoverVecEnv(**kwargs), HoverVecEnv(**kwargs, reward_scale=0.01)
+    plain.reset(), scaled.reset()
+    a = hover_action(plain)
+    for _ in range(30):
+        _, r1, d1, i1 = plain.step(a)
+        _, r2, d2, i2 = scaled.step(a)
+        np.testing.assert_allclose(r2, 0.01 * r1, rtol=1e-6)
+    assert d1.all() and d2.all()
+    assert [i["episode"]["r"] for i in i2] == [i["episode"]["r"] for i in i1]

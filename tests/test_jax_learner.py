@@ -129,7 +129,8 @@ def test_l2_changes_the_update_only_through_the_decay():
     assert not any(k.startswith(("mlp_extractor.value_net", "value_net")) for k in changed)
 
 
-def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop():
+@pytest.mark.parametrize("reward_scale", [1.0, 0.01])
+def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
     """Replay the JAX learner's recorded actions through HoverVecEnv.step (the env SB3 steps) and rebuild every
     buffer entry with SB3's definitions: observations, rewards with the timeout bootstrap, episode starts,
     values and log-probabilities of the networks, GAE advantages and returns (SB3's RolloutBuffer)."""
@@ -137,7 +138,7 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop():
 
     def make_env():
         return HoverVecEnv(n_envs=n, seed=3, wind=WindSchedule([3.0, 1.0], segment_steps=500), episode_seconds=0.8,
-                           world_bound=2.5, reward=HoverReward(crash_reward=-500.0))
+                           world_bound=2.5, reward=HoverReward(crash_reward=-500.0), reward_scale=reward_scale)
     env = make_env()
     model = JaxPPO(env, n_steps=steps, batch_size=60, seed=3)
     model.params["log_std"] = model.params["log_std"] + 1.0  # wide actions: crashes and timeouts both happen
@@ -150,6 +151,7 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop():
     replay = make_env()
     obs, starts = replay.reset(), np.ones(n, dtype=bool)
     truncations = crashes = 0
+    episodes = []
     for t in range(steps):
         np.testing.assert_allclose(buf.observations[t], obs, rtol=0, atol=1e-6)
         np.testing.assert_array_equal(buf.episode_starts[t], starts.astype(np.float32))
@@ -161,10 +163,13 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop():
                 compiled.values_of(infos[i]["terminal_observation"][None], *model._vf, False, value)
                 rewards[i] += model.gamma * value[0]
             crashes += infos[i]["crashed"]
+            episodes.append((infos[i]["episode"]["r"], infos[i]["episode"]["l"]))
         np.testing.assert_allclose(buf.rewards[t], rewards, rtol=1e-6, atol=1e-5)
         starts = dones
     assert truncations > 0 and crashes > 0
     assert replay.global_step == env.global_step
+    logged = [(e["r"], e["l"]) for e in model.ep_info_buffer]  # SB3's episode buffer: returns in task units
+    assert len(logged) == len(episodes) and np.allclose(logged, episodes, rtol=1e-6)
 
     import jax.numpy as jnp
 

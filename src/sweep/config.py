@@ -92,6 +92,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("env.reward.alive_bonus", non_negative, "a number >= 0"),
     ("env.reward.crash_reward", lambda v: v is None or _is_num(v), "a number or null (no replacement)"),
     ("env.time_limit", one_of("truncate", "terminate"), "truncate|terminate"),
+    ("env.reward_scale", positive, "a number > 0"),
     ("env.observation_scale.velocity", positive, "a number > 0"),
     ("env.observation_scale.body_rate", positive, "a number > 0"),
     ("wind.speeds", speeds_list, "a non-empty list of speeds >= 0 (m/s)"),

@@ -31,13 +31,16 @@ def hover_success(positions: np.ndarray, crashed: bool, radius: float, hold_step
     return bool(np.all(np.linalg.norm(tail, axis=1) <= radius))
 
 
-def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int) -> HoverVecEnv:
+def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False) -> HoverVecEnv:
+    """The hover env of ``env_cfg``; the reward it returns is scaled by ``env.reward_scale`` only for a learner
+    (``learning=True``): evaluations see the task's reward."""
     return HoverVecEnv(
         n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
         observation=env_cfg.observation, time_limit=env_cfg.time_limit,
-        observation_scale=dict(env_cfg.observation_scale), seed=seed)
+        observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
+        seed=seed)
 
 
 def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:

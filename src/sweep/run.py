@@ -90,7 +90,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
 
     wind = WindSchedule(speeds=list(cfg.wind.speeds), segment_steps=cfg.wind.segment_steps,
                         direction=list(cfg.wind.direction), name=cfg.wind.name)
-    env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed)
+    env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed)
     callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()]
     if cfg.eval.every_timesteps > 0:

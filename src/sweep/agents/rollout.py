@@ -7,7 +7,8 @@ with ``ActorCriticPolicy`` (Gaussian, state-independent std):
 
 * value V(s) and action a = mu(s) + exp(log_std) * eps, eps ~ N(0, 1) drawn beforehand by the caller;
   log pi(a|s) = sum_i -eps_i^2 / 2 - log_std_i - log sqrt(2 pi);
-* the env gets a clipped to [-1, 1]; the buffer keeps the unclipped a;
+* the env gets a clipped to [-1, 1]; the buffer keeps the unclipped a and the reward times the env's
+  ``reward_scale``;
 * a truncated episode's reward gets + gamma V(terminal observation) (SB3's timeout bootstrap).
 
 The env step is the env's own compiled pieces: the fast backend's ``_step_loop`` (physics) and
@@ -78,7 +79,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
         pi_w, pi_b, vf_w, vf_b, log_std, relu, gamma,
         buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
         x, v, q, w, rotor_speeds, dt, geo, rdir, inertia, inv_inertia, c_d, scal, speed_min, speed_max,
-        t_idx, ep_return, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
+        t_idx, ep_return, reward_scale, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
         w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, rewards, crashed, terminated, truncated):
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
 
@@ -130,7 +131,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
         any_done = False
         for i in range(n):
             ep_return[i] += rewards[i]
-            reward = rewards[i]
+            reward = rewards[i] * np.float32(reward_scale)
             if truncated[i]:
                 mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
                 reward += np.float32(gamma) * value[0]

@@ -7,6 +7,8 @@
   rates; or, with ``observation="euler"``, 12-D with roll/pitch/yaw as in the paper's state list.
   ``observation_scale`` multiplies the velocity (m/s) and body-rate (rad/s) entries (default 1: RotorPy's
   raw state); positions stay in metres.
+* ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
+  (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode.
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
@@ -95,6 +97,7 @@ class HoverVecEnv(VecEnv):
         observation: str = "quaternion",
         time_limit: str = "truncate",
         observation_scale: dict | None = None,
+        reward_scale: float = 1.0,
         seed: int | None = None,
     ) -> None:
         if observation not in OBSERVATIONS:
@@ -104,6 +107,7 @@ class HoverVecEnv(VecEnv):
         self.time_limit = time_limit
         scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
         self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])
+        self.reward_scale = float(reward_scale)
         self.params = crazyflie_params(motor_time_constant)
         self.dt = 1.0 / float(sim_rate)
         self.episode_steps = int(round(episode_seconds * sim_rate))
@@ -148,8 +152,8 @@ class HoverVecEnv(VecEnv):
         s = self.sim
         if not hasattr(s, "kernel_args"):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
-        return (s.x, s.v, s.q, s.w, s.rotor_speeds, *s.kernel_args, self.t_idx, self.ep_return, *self._task_args,
-                self._rewards, self._crashed, self._terminated, self._truncated)
+        return (s.x, s.v, s.q, s.w, s.rotor_speeds, *s.kernel_args, self.t_idx, self.ep_return, self.reward_scale,
+                *self._task_args, self._rewards, self._crashed, self._terminated, self._truncated)
 
     # ---- task pieces -------------------------------------------------------------------------
     def actions_to_rotor_speeds(self, actions: np.ndarray) -> np.ndarray:
@@ -220,7 +224,8 @@ class HoverVecEnv(VecEnv):
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()
         self.ep_return += rewards
         dones = self._terminated | self._truncated
-        return obs, rewards, dones, self.end_episodes(obs, dones)
+        infos = self.end_episodes(obs, dones)
+        return obs, rewards * np.float32(self.reward_scale) if self.reward_scale != 1.0 else rewards, dones, infos
 
     def end_episodes(self, obs: np.ndarray, dones: np.ndarray) -> list[dict[str, Any]]:
         """SB3's infos of one step; every vehicle whose episode ended (``dones``) is reset and its row of
