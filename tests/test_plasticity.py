@@ -213,17 +213,18 @@ def test_recom_learning_rate_reaches_the_optimizer(name):
 # ---- L2 ----------------------------------------------------------------------------------------
 
 
-def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term():
+@pytest.mark.parametrize("mode, optimizer", [("coupled", torch.optim.Adam), ("decoupled", torch.optim.AdamW)])
+def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term(mode, optimizer):
     env = HoverVecEnv(n_envs=1, seed=0)
     ppo = build_learner(compose_cfg(["agent=ppo"]).agent, env, seed=0)
-    l2_cfg = compose_cfg(["agent=l2"]).agent
+    l2_cfg = compose_cfg(["agent=l2", f"agent.l2.mode={mode}"]).agent
     l2 = build_learner(l2_cfg, env, seed=0)
     (remedy,) = build_remedies(l2_cfg)
     remedy.init_callback(l2)
     base = ppo.policy.optimizer
     new = l2.policy.optimizer
-    assert type(base) is type(new) is torch.optim.Adam
-    keys = set(base.defaults) - {"weight_decay"}
+    assert type(base) is torch.optim.Adam and type(new) is optimizer
+    keys = set(base.defaults) - {"weight_decay", "decoupled_weight_decay"}  # the L2 term itself
     for group in new.param_groups:
         assert {k: group[k] for k in keys} == {k: base.param_groups[0][k] for k in keys}
     assert base.param_groups[0]["eps"] == 1e-5
