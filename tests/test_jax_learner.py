@@ -13,6 +13,10 @@ std, a clip of 1e-6 more or less, a missing L2 term all move weights by > 1e-4 i
 """
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import jax
 import numpy as np
 import pytest
@@ -190,6 +194,25 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
     ref.compute_returns_and_advantage(torch.as_tensor(last), model._last_episode_starts)
     np.testing.assert_allclose(buf.advantages, ref.advantages, rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(buf.returns, ref.returns, rtol=1e-5, atol=1e-4)
+
+
+_XLA_POOL = """
+import os
+cores = os.sched_getaffinity(0)
+import sweep.agents.jax_ppo  # noqa: F401  creates the JAX CPU client
+names = [open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task")]
+same = all(os.sched_getaffinity(int(t)) == cores for t in os.listdir("/proc/self/task"))
+print(sum(n.startswith("tf_XLAEigen") for n in names), same, len(cores))
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs Linux affinity and 2 cores")
+def test_a_jax_run_keeps_one_xla_compute_thread_and_every_core():
+    """XLA would start one intra-op thread per core (a run then used 1.4 CPUs); importing the learner leaves one,
+    and gives every thread back the process's cores."""
+    out = subprocess.run([sys.executable, "-c", _XLA_POOL], capture_output=True, text=True, check=True).stdout.split()
+    assert out[:2] == ["1", "True"], out
 
 
 def test_saved_model_is_an_sb3_ppo_that_acts_the_same(tmp_path):

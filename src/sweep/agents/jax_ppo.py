@@ -30,7 +30,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-# One CPU thread (as torch: train.torch_threads), and compiled programs cached across runs (~3 s per job).
+# One CPU thread (as torch: train.torch_threads; see _jax_cpu_client_on_one_thread), and compiled programs cached across runs (~3 s per job).
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path.home() / ".cache" / "sweep" / "jax"))
@@ -58,6 +58,30 @@ from sweep.agents import rollout  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu}
+
+def _jax_cpu_client_on_one_thread() -> None:
+    """Create JAX's CPU client while this thread may run on one core, so XLA sizes its intra-op thread pool
+    to one thread, then give every thread of the process back all its cores.
+
+    jaxlib 0.10 ignores the XLA_FLAGS above for that pool (one thread per core): a run used 1.4 CPUs for no
+    speed-up, and two concurrent runs on two cores got 1.24x one run's rate (benchmarks/RESULTS.md). The
+    affinity is the only limit XLA reads (jax-ml/jax#1539). No effect if the client already exists."""
+    if not hasattr(os, "sched_setaffinity"):
+        return
+    cores = os.sched_getaffinity(0)
+    os.sched_setaffinity(0, {min(cores)})
+    try:
+        jax.devices()
+    finally:
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setaffinity(int(tid), cores)
+            except OSError:  # a thread that ended meanwhile
+                pass
+
+
+_jax_cpu_client_on_one_thread()
+
 TORCH_ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 Params = dict[str, jax.Array]
 
