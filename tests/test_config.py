@@ -89,3 +89,31 @@ def test_cli_unknown_group_option_lists_valid_ones(tmp_path: Path):
     proc = run_cli(["agent=nope", f"hydra.run.dir={tmp_path / 'out'}"], f"sqlite:///{tmp_path / 'x.db'}", ROOT)
     assert proc.returncode != 0
     assert "Could not find 'agent/nope'" in proc.stderr and "ppo" in proc.stderr and "recom_l2" in proc.stderr
+
+
+def test_every_config_key_is_in_the_readme():
+    """The README's configuration reference names every key a user can set (a key in a grouped row, e.g.
+    `env.reward.w_p`, `w_v`, `w_a` or `agent.ppo.*`, counts)."""
+    from omegaconf import OmegaConf
+
+    readme = (CONF.parent / "README.md").read_text()
+    cfg = OmegaConf.to_container(compose_cfg(), resolve=False)
+    keys = []
+
+    def walk(node, prefix):
+        for k, v in node.items():
+            if isinstance(v, dict) and not k.startswith("_"):
+                walk(v, f"{prefix}{k}.")
+            elif not k.startswith("_") and k != "name":
+                keys.append(f"{prefix}{k}")
+
+    walk(cfg, "")
+    rows = [line for line in readme.splitlines() if line.startswith("| `")]
+    missing = []
+    for key in keys:
+        parent, leaf = key.rsplit(".", 1) if "." in key else ("", key)
+        documented = any(f"`{key}`" in r or (parent and f"`{parent}.*`" in r)
+                         or (parent and f"`{parent}." in r and (f"`{leaf}`" in r or f".{leaf}`" in r)) for r in rows)
+        if not documented:
+            missing.append(key)
+    assert not missing, f"config keys missing from the README's configuration reference: {missing}"
