@@ -37,7 +37,7 @@ CURVE_METRICS = {"reward": "rollout/ep_rew_mean", "episode_length": "rollout/ep_
                  "learning_rate": "train/learning_rate", "eval_success": "eval/success_rate",
                  "eval_crash": "eval/crash_rate"}
 SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
-TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv"]
+TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv", "segments.md", "segments.csv"]
 
 
 def env_with(uri: str) -> dict:
@@ -271,6 +271,24 @@ def test_summary_equals_a_hand_computation_from_the_histories(store, report):
             assert not shares and np.isnan(row["lr_at_bound_pct"])
     assert 0.0 <= summary.loc["RECOM + L2 PPO (coef=0.01)", "p_improve_over_ppo"] <= 1.0
     assert np.isnan(summary.loc["PPO", "p_improve_over_ppo"])
+
+
+def test_segments_are_the_reward_in_each_hold_of_the_wind_schedule(store, report):
+    out, _ = report
+    hand = hand_runs(store)
+    table = pd.read_csv(out / "segments.csv")
+    # wind.segment_steps=512, rollouts of 512, 1536 steps: the rewards logged at 512, 1024, 1536 are segments 0, 1, 2
+    assert sorted(table["segment"].unique()) == [0, 1, 2]
+    assert list(table.groupby("segment")["speed"].first()) == [3.0, 2.0, 2.5]  # wind=paper's schedule
+    for (cond, k), row in table.set_index(["condition", "segment"]).iterrows():
+        g = hand[hand["condition"] == cond]
+        per_seed = [values[(steps > 512 * k) & (steps <= 512 * (k + 1))].mean() for steps, values in g["reward"]]
+        assert row["n_seeds"] == len(per_seed) == 2
+        assert row["reward_mean"] == pytest.approx(np.mean(per_seed))
+    shown = md_table(out / "segments.md").set_index("Agent")
+    assert list(shown.columns[2:]) == ["0–512 (3 m/s)", "512–1.024k (2 m/s)", "1.024k–1.536k (2.5 m/s)"]
+    ppo = table[(table["condition"] == "PPO") & (table["segment"] == 1)].iloc[0]
+    assert shown.loc["PPO", "512–1.024k (2 m/s)"] == f"{ppo['reward_mean']:.0f} ± {ppo['reward_ci95']:.0f}"
 
 
 def test_baseline_is_the_iqm_difference_to_the_matching_condition(store, report):

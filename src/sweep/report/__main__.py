@@ -3,7 +3,8 @@
 Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (saturated units below),
 weight_norm_W, learning_rate_W, eval_success_W and eval_crash_W (only if runs evaluated during training,
 eval.every_timesteps > 0); eval_flights_3d and eval_position_axes. Tables: table3.{md,tex,csv} (evaluation under
-wind, with the best seed's numbers), summary.{md,csv} (training outcome per condition).
+wind, with the best seed's numbers), summary.{md,csv} (training outcome per condition), segments.{md,csv}
+(training reward in each hold of the wind schedule).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
           baseline: str | None = None) -> Path:
     from mlflow.exceptions import MlflowException
 
-    from sweep.report import conditions, figures, load, stats, style, tables
+    from sweep.report import conditions, figures, load, style, tables
 
     uri = load.tracking_uri()
     try:
@@ -66,7 +67,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir)
 
-    written += tables.write_tables(runs, stats.per_run_curve_stats(histories), conds, out_dir, base)
+    written += tables.write_tables(runs, histories, conds, out_dir, base)
     print(f"sweep.report: wrote {len(written)} files")
     return out_dir.resolve()
 

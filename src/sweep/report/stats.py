@@ -108,6 +108,30 @@ def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["run_id", *FINALS, "collapse", "at_bound"])
 
 
+def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
+    """One row per run and wind segment k (the schedule's k-th hold of ``segment_steps`` timesteps): the mean of
+    ``rollout/ep_rew_mean`` logged at steps in (k S, (k+1) S] (a value logged at the end of a rollout covers the
+    episodes that rollout finished; a rollout that ends past total_timesteps counts in the last segment). Columns run_id, segment, start, end, speed, reward."""
+    rows = []
+    rewards = histories[histories["key"] == "rollout/ep_rew_mean"]
+    for run in runs.itertuples():
+        h = rewards[rewards["run_id"] == run.run_id]
+        length = run.segment_steps
+        if not len(h) or not np.isfinite(length) or length <= 0:
+            continue
+        steps = h["step"].to_numpy(dtype=float)
+        total = pd.to_numeric(getattr(run, "total_timesteps", None), errors="coerce")
+        if np.isfinite(total):  # the last rollout may end past total_timesteps: it belongs to the last segment
+            steps = np.minimum(steps, total)
+        segment = np.ceil(steps / length).astype(int) - 1  # step S -> 0, S + 1 -> 1
+        speeds = list(run.speeds) or [np.nan]
+        for k in np.unique(segment[segment >= 0]):
+            rows.append({"run_id": run.run_id, "segment": int(k), "start": int(k * length),
+                         "end": int((k + 1) * length), "speed": float(speeds[k % len(speeds)]),
+                         "reward": float(h["value"].to_numpy()[segment == k].mean())})
+    return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end", "speed", "reward"])
+
+
 def mean_t_ci(values) -> tuple[float, float, int]:
     """(mean, half-width of the 95% Student-t CI, n) of the finite values; half-width NaN for n < 2."""
     x = np.asarray(values, dtype=float)
