@@ -35,7 +35,7 @@ BY = ["--by", "agent.l2.coef", "--baseline", "agent=ppo"]
 CURVE_METRICS = {"reward": "rollout/ep_rew_mean", "episode_length": "rollout/ep_len_mean",
                  "dormant": "plasticity/dormant_ratio", "weight_norm": "plasticity/weight_norm",
                  "learning_rate": "train/learning_rate", "eval_success": "eval/success_rate",
-                 "eval_crash": "eval/crash_rate"}
+                 "eval_crash": "eval/crash_rate", "ppo_update": "train/std"}
 SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
 TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv", "segments.md", "segments.csv"]
 

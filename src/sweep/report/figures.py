@@ -40,6 +40,10 @@ CURVES = {
     "learning_rate": [Curve("train/learning_rate", "Learning rate", logy=True)],
     "eval_success": [Curve("eval/success_rate", "Evaluation success (%)", 100.0, ylim=(-3, 103), sparse=True)],
     "eval_crash": [Curve("eval/crash_rate", "Evaluation crashes (%)", 100.0, ylim=(-3, 103), sparse=True)],
+    # PPO's own health: how far each update moves a policy whose exploration noise shrinks
+    "ppo_update": [Curve("train/std", "Policy std\n(action units)", logy=True),
+                   Curve("train/approx_kl", "Approx. KL\nper update", logy=True),
+                   Curve("train/clip_fraction", "Clip fraction (%)", 100.0, percent=True)],
 }
 BAND = "mean over seeds; band: 95% bootstrap CI"
 

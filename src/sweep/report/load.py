@@ -25,7 +25,8 @@ EVAL_KEYS = ["eval/success_rate", "eval/mse_x", "eval/mse_y", "eval/mse_z", "eva
              "eval/return", "eval/crash_rate"]
 CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate", "rollout/ep_len_mean",
               "plasticity/weight_norm", "plasticity/saturated_ratio"]  # every run logs these
-OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate"]  # only RECOM / eval during training
+OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate",  # only RECOM / eval during training
+                 "train/std", "train/approx_kl", "train/clip_fraction"]  # PPO's update statistics
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius"}
