@@ -2,9 +2,10 @@
 
 Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (saturated units below),
 weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction), learning_rate_W, eval_success_W and
-eval_crash_W (only if runs evaluated during training, eval.every_timesteps > 0); eval_flights_3d and eval_position_axes. Tables: table3.{md,tex,csv} (evaluation under
-wind, with the best seed's numbers), summary.{md,csv} (training outcome per condition), segments.{md,csv}
-(training reward in each hold of the wind schedule).
+eval_crash_W (only if runs evaluated during training, eval.every_timesteps > 0); eval_flights_3d and
+eval_position_axes. Tables: table3.{md,tex,csv} (evaluation under wind, with the best seed's numbers),
+summary.{md,csv} (training outcome per condition), segments.{md,csv} (training reward in each hold of the
+wind schedule).
 """
 from __future__ import annotations
 
