@@ -164,7 +164,7 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
             if infos[i]["TimeLimit.truncated"]:
                 truncations += 1
                 value = np.empty(1, np.float32)
-                compiled.values_of(infos[i]["terminal_observation"][None], *model._vf, False, value)
+                compiled.values_of(infos[i]["terminal_observation"][None], *model._vf, model._relu, model.layer_norm, value)
                 rewards[i] += model.gamma * value[0]
             crashes += infos[i]["crashed"]
             episodes.append((infos[i]["episode"]["r"], infos[i]["episode"]["l"]))
@@ -190,7 +190,7 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
     for key in ("rewards", "values", "episode_starts"):
         getattr(ref, key)[...] = getattr(buf, key)
     last = np.empty(n, np.float32)
-    compiled.values_of(model._last_obs, *model._vf, False, last)
+    compiled.values_of(model._last_obs, *model._vf, model._relu, model.layer_norm, last)
     ref.compute_returns_and_advantage(torch.as_tensor(last), model._last_episode_starts)
     np.testing.assert_allclose(buf.advantages, ref.advantages, rtol=1e-5, atol=1e-4)
     np.testing.assert_allclose(buf.returns, ref.returns, rtol=1e-5, atol=1e-4)

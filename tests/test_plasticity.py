@@ -8,6 +8,7 @@ import torch
 from conftest import compose_cfg
 from sweep.agents import build_learner, build_remedies
 from sweep.envs import HoverVecEnv, WindSchedule
+from sweep.plasticity.batch import recent_rollout
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.dormant import dormant_mask, dormant_ratio, dormant_scores, srank
 from sweep.plasticity.l2 import L2Regularization
@@ -56,11 +57,11 @@ def test_diagnostics_report_exactly_the_units_made_dormant(name):
     for layer, units in silenced.items():
         params[f"mlp_extractor.policy_net.{2 * layer}.weight"][units] = 0.0
         params[f"mlp_extractor.policy_net.{2 * layer}.bias"][units] = 0.0
-    model.load_learner_state(_with_params(model, params), optimizer=False)
+    model.write_parameters(params)
     diagnostics = PlasticityDiagnostics(**cfg.plasticity)
     diagnostics.init_callback(model)
-    obs = diagnostics._recent_batch()[0]
-    pi_layers, _ = model.hidden_activations(obs)
+    obs = recent_rollout(model.rollout_buffer, cfg.plasticity.batch_size)[0]
+    pi_layers = [h.post for h in model.hidden_activations(obs)["policy"]]
     for layer, units in silenced.items():
         assert np.flatnonzero(dormant_mask(pi_layers[layer], 0.025)).tolist() == units
     stats = diagnostics.measure()
@@ -68,20 +69,11 @@ def test_diagnostics_report_exactly_the_units_made_dormant(name):
     assert stats["dormant_ratio"] == 7 / 128 and stats["value_dormant_ratio"] == 0.0
 
 
-def _with_params(model, params: dict) -> dict:
-    state = model.learner_state()
-    if "params" in state:  # JaxPPO
-        return {**state, "params": params}
-    import torch
-
-    return {**state, "policy": {k: torch.as_tensor(v) for k, v in params.items()}}
-
-
 def test_diagnostics_agree_between_learners_on_the_same_weights_and_batch():
     (cfg, sb3), (_, jx) = learner("sb3", ["agent.ppo.n_steps=256"], n_envs=4), learner("jax", ["agent.ppo.n_steps=256"],
                                                                                           n_envs=4)
     sb3.learn(1024)
-    jx.load_learner_state(_with_params(jx, sb3.parameter_arrays()), optimizer=False)
+    jx.write_parameters(sb3.parameter_arrays())
     jx.rollout_buffer = sb3.rollout_buffer
     measured = []
     for model in (sb3, jx):

@@ -14,11 +14,12 @@ import numpy as np
 import pandas as pd
 import pytest
 from matplotlib import image
+from matplotlib.colors import to_hex
 from mlflow.entities import Metric, Param
 from mlflow.tracking import MlflowClient
 from scipy.stats import trim_mean
 
-from sweep.report import conditions, load, stats, style, tables
+from sweep.report import conditions, figures, load, stats, style, tables
 from sweep.report.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,7 +108,8 @@ def hand_runs(store: str, experiment: str = EXPERIMENT, by_coef: bool = True) ->
         agent, params = r.data.tags["agent"], r.data.params
         coef = params["agent.l2.coef"] if by_coef and params.get("agent.l2.enabled") == "True" else None
         row = {"run_id": r.info.run_id, "agent": agent, "seed": int(r.data.tags["seed"]),
-               "start": r.info.start_time, "condition": style.label(agent) + (f" (coef={coef})" if coef else ""),
+               "start": r.info.start_time,
+               "condition": r.data.tags["agent_label"] + (f" (coef={coef})" if coef else ""),
                **{k: v for k, v in r.data.metrics.items() if k.startswith("eval/")}}
         for name, key in [("reward", "rollout/ep_rew_mean"), ("dormant", "plasticity/dormant_ratio"),
                           ("at_bound", "recom/at_bound")]:
@@ -154,6 +156,62 @@ def log_hand_runs(client: MlflowClient) -> None:
                                                        ("eval/return", ret), ("eval/crash_rate", 0.5)]]
         client.log_batch(run_id, metrics=metrics, params=[Param(k, v) for k, v in params.items()])
         client.set_terminated(run_id)
+
+
+# Twelve agents of made-up names, none of the paper's: more than the colours, so line styles must tell them apart.
+# Labels as agent YAMLs may have them (long, '&', '%', '_'); 'delta_cbp' logged its label only as the param
+# agent.label (the tag agent_label came later), 'zeta_plain' logged none (labelled with its name); 'kappa_sp' was
+# relabelled between its seeds (the newest run's label counts).
+MANY = {"alpha_redo": "ReDo (τ=0.1) + PPO", "beta_snp": "Shrink & Perturb + PPO", "gamma_l2i": "L2 Init + PPO",
+        "delta_cbp": "Continual Backprop + L2", "eps_ln": "LayerNorm PPO", "eta_crelu": "CReLU PPO",
+        "theta_reset": "Reset last layer (10%)", "iota_plast": "Plasticity Injection",
+        "kappa_sp": "S&P + LayerNorm", "lambda_dw": "DASH warm start", "mu_hare": "Hare & Tortoise",
+        "zeta_plain": "zeta_plain"}
+
+
+def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, flights: Path | None = None) -> None:
+    """Experiment ``experiment``: every MANY agent x ``seeds`` seeds in wind 'paper', reward, episode length and
+    dormant histories (all curves if ``flights``, a folder for evaluation-flight artifacts, is given)."""
+    exp_id = client.create_experiment(experiment, None if flights is None else (flights / "artifacts").as_uri())
+    steps = np.arange(0, 20_001, 500)
+    rng = np.random.default_rng(0)
+    for k, (agent, label) in enumerate(MANY.items()):
+        for seed in range(seeds):
+            tags = {"agent": agent, "wind": "paper", "seed": str(seed), "run_name": f"{agent}-s{seed}",
+                    "sweep": "many"}
+            logged = "older label" if agent == "kappa_sp" and seed == 0 else label
+            params = {"wind.speeds": "[3.0, 2.0, 2.5]", "wind.segment_steps": "5000", "eval.success_radius": "0.5"}
+            if agent not in ("delta_cbp", "zeta_plain"):
+                tags["agent_label"] = logged
+            if agent != "zeta_plain":
+                params["agent.label"] = logged
+            run_id = client.create_run(exp_id, tags=tags, start_time=1000 * (10 * k + seed)).info.run_id
+            t = steps / steps[-1]
+            curves = {"rollout/ep_rew_mean": -900 + (500 + 25 * k) * (1 - np.exp(-4 * t)) - 60 * (k % 3) * t,
+                      "rollout/ep_len_mean": 100 + 400 * t ** (1 + k / 6), "plasticity/dormant_ratio": 0.004 * k * t}
+            if flights is not None:
+                curves |= {"plasticity/saturated_ratio": 0.01 * k * t, "plasticity/weight_norm": 30 + (2 + k) * t,
+                           "train/learning_rate": 3e-4 * (1 + 0.05 * k * t), "train/std": np.exp(-(1 + k / 4) * t),
+                           "train/approx_kl": 0.01 * (1 + k * t), "train/clip_fraction": 0.1 + 0.02 * k * t}
+            metrics = [Metric(key, float(v + rng.normal(0, 0.02 * (abs(v) + 1e-4))), 0, int(s))
+                       for key, values in curves.items() for s, v in zip(steps, values)]
+            metrics += [Metric(key, v, 0, int(s)) for s in steps[::10] for key, v in
+                        [("eval/success_rate", min(1.0, s / 20_000 * (0.3 + k / 20))),
+                         ("eval/crash_rate", max(0.0, 0.5 - s / 40_000 - k / 40))]]
+            metrics += [Metric(key, v, 0, 20_000) for key, v in
+                        [("eval/mse_x", 0.1 * (k + 1) + seed), ("eval/mse_y", 0.2), ("eval/mse_z", 0.3),
+                         ("eval/return", -100.0 * k - seed)]]
+            client.log_batch(run_id, metrics=metrics, params=[Param(key, v) for key, v in params.items()])
+            if flights is not None:
+                time = np.linspace(0, 5, 101)[None, :, None]
+                start = rng.uniform(-2, 2, (4, 1, 3))
+                positions = start * np.exp(-(0.5 + k / 8) * time) + 0.05 * k * np.sin(3 * time)
+                path = flights / f"{agent}-{seed}" / "eval_trajectories.npz"
+                path.parent.mkdir(parents=True)
+                np.savez_compressed(path, positions=positions, crashed=np.arange(4) < k % 3,
+                                    success=np.arange(4) >= k % 3, dt=np.array(0.05), wind=np.array([2.0, 0, 0]))
+                client.log_artifact(run_id, str(path))
+            client.set_terminated(run_id)
 
 
 def md_table(path: Path) -> pd.DataFrame:
@@ -359,6 +417,60 @@ def test_every_condition_looks_different():
     assert looks["ppo 0"] == (style.FIXED["ppo"], "-") and looks["RECOM"] == (style.FIXED["recom_l2"],
                                                                              style.DASHES["recom_l2"])
     assert looks == style.looks(agent_of)  # the same in every figure
+
+
+def test_many_agents_keep_their_labels_and_distinct_looks(tmp_path, monkeypatch):
+    """Twelve agents: every figure's legend and every table names each by the label its runs logged, each agent
+    has one look in all figures, no two agents look alike, and the legends fit the column."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_many_agents(MlflowClient(uri), "many")
+    drawn, save = {}, figures.save
+
+    def spy(fig, out, stem):  # the legend entries of every figure: (label, colour, dash pattern)
+        legends = [leg for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg is not None]
+        drawn[stem] = [(text.get_text(), to_hex(handle.get_color()), handle._unscaled_dash_pattern)
+                       for leg in legends for text, handle in zip(leg.get_texts(), leg.legend_handles)]
+        return save(fig, out, stem)
+
+    monkeypatch.setattr(figures, "save", spy)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many")
+    assert code == 0, stdout + stderr
+    curves = {"reward_paper", "episode_length_paper", "dormant_paper", "eval_success_paper", "eval_crash_paper"}
+    assert set(drawn) == curves
+    labels = sorted(MANY.values(), key=str.casefold)  # paper agents first, then by label: here by label only
+    look = {}
+    for stem, entries in drawn.items():
+        assert [text for text, _, _ in entries] == labels, stem
+        for text, colour, dash in entries:
+            assert look.setdefault(text, (colour, dash)) == (colour, dash), (stem, text)  # one look per agent
+        width = image.imread(tmp_path / "out" / f"{stem}.png").shape[1]
+        assert width <= 1200, f"{stem}.png is {width} px wide: its legend is wider than the column"
+    assert len(set(look.values())) == len(look) == 12, look
+    # no paper agent here: all colours are free, eleven agents get one each, the twelfth a new line style
+    assert len({colour for colour, _ in look.values()}) == len(style.EXTRA) + len(style.FIXED) == 11
+    for table, column in [("table3.md", "Control policy"), ("summary.md", "Agent"), ("segments.md", "Agent")]:
+        assert list(md_table(tmp_path / "out" / table)[column]) == labels, table
+    assert set(pd.read_csv(tmp_path / "out" / "summary.csv")["agent"]) == set(MANY)
+    tex = (tmp_path / "out" / "table3.tex").read_text()
+    assert r"Shrink \& Perturb + PPO & paper &" in tex and r"Reset last layer (10\%) & paper &" in tex
+    assert "older label" not in stdout + "".join(p.read_text() for p in (tmp_path / "out").glob("*.md"))
+
+
+def test_labels_fall_back_for_older_stores_never_collide_and_title_panels():
+    assert load.agent_label("l2", {"agent_label": "Tag"}, {"agent.label": "Param"}) == "Tag"
+    assert load.agent_label("l2", {}, {"agent.label": "Param"}) == "Param"
+    assert load.agent_label("l2", {}, {}) == "L2 + PPO" and load.agent_label("mine", {}, {}) == "mine"
+    runs = pd.DataFrame({"agent": ["a", "a", "b", "c"], "label": ["Old", "Same", "Same", "C"],
+                         "start_time": [2, 3, 1, 1]})
+    assert conditions.agent_labels(runs) == {"a": "Same [a]", "b": "Same [b]", "c": "C"}
+    assert conditions.agent_labels(runs.assign(start_time=[3, 2, 1, 1])) == {"a": "Old", "b": "Same", "c": "C"}
+    # a narrow panel's title: the agent's label, then the --by values (a label's own brackets are no --by value)
+    runs = pd.DataFrame({"agent": ["ppo", "x", "x"], "label": ["PPO", "Reset (10%)", "Reset (10%)"],
+                         "start_time": [1, 1, 1], "agent.l2.coef": [load.NA, "0.1", "0.2"]})
+    _, conds = conditions.build(runs, ["agent.l2.coef"])
+    assert conds.order == ["PPO", "Reset (10%) (coef=0.1)", "Reset (10%) (coef=0.2)"]
+    titles = [figures._title(c, conds, 24) for c in conds.order]
+    assert titles == ["PPO", "Reset (10%)\ncoef=0.1", "Reset (10%)\ncoef=0.2"]
 
 
 @pytest.mark.parametrize("args, message", [

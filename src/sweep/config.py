@@ -67,6 +67,10 @@ def vector3(v: Any) -> bool:
     return isinstance(v, list) and len(v) == 3 and all(_is_num(s) for s in v) and any(s != 0 for s in v)
 
 
+def networks_list(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value"}
+
+
 def one_of(*allowed: str) -> Callable[[Any], bool]:
     return lambda v: v in allowed
 
@@ -113,10 +117,32 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
      "a non-empty list of layer widths > 0"),
     ("agent.policy.activation", one_of("tanh", "relu"), "tanh|relu"),
     ("agent.policy.adam_eps", positive, "a number > 0"),
+    ("agent.policy.layer_norm", lambda v: isinstance(v, bool), "true|false"),
+    ("agent.ppo.target_kl", lambda v: v is None or positive(v), "a number > 0 or null (off)"),
+    ("agent.ppo.lr_schedule", one_of("constant", "linear", "cosine"), "constant|linear|cosine"),
+    ("agent.ppo.lr_floor", non_negative, "a number >= 0"),
     ("agent.l2.coef", non_negative, "a number >= 0"),
     ("agent.l2.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
     ("agent.l2.params", lambda v: isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"},
      "a non-empty subset of [policy, value, log_std]"),
+    ("agent.l2_init.coef", non_negative, "a number >= 0"),
+    ("agent.l2_init.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
+    ("agent.l2_init.params", lambda v: isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"},
+     "a non-empty subset of [policy, value, log_std]"),
+    ("agent.redo.every_updates", positive_int, "an integer > 0 (PPO updates)"),
+    ("agent.redo.tau", unit_interval, "a number in [0, 1]"),
+    ("agent.redo.networks", networks_list, "a non-empty subset of [policy, value]"),
+    ("agent.redo.batch_size", positive_int, "an integer > 0"),
+    ("agent.shrink_perturb.every_updates", positive_int, "an integer > 0 (PPO updates)"),
+    ("agent.shrink_perturb.shrink", unit_interval, "a number in [0, 1]"),
+    ("agent.shrink_perturb.perturb", non_negative, "a number >= 0"),
+    ("agent.shrink_perturb.params", lambda v: isinstance(v, list) and len(v) > 0
+     and set(v) <= {"policy", "value", "log_std"}, "a non-empty subset of [policy, value, log_std]"),
+    ("agent.cbp.replacement_rate", unit_interval, "a number in [0, 1] (per eligible unit and minibatch step)"),
+    ("agent.cbp.maturity", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (minibatch steps)"),
+    ("agent.cbp.decay", unit_interval, "a number in [0, 1]"),
+    ("agent.cbp.networks", networks_list, "a non-empty subset of [policy, value]"),
+    ("agent.cbp.batch_size", positive_int, "an integer > 0"),
     ("agent.recom.interval", positive_int, "an integer > 0 (timesteps)"),
     ("agent.recom.window", positive_int, "an integer > 0 (episodes)"),
     ("agent.recom.gain", non_negative, "a number >= 0"),
@@ -154,6 +180,12 @@ def validate(cfg: DictConfig) -> None:
     lr_min, lr_max = _get(cfg, "agent.recom.lr_min"), _get(cfg, "agent.recom.lr_max")
     if lr_min is not _MISSING and lr_max is not _MISSING and lr_min > lr_max:
         raise ConfigError(f"agent.recom.lr_min={lr_min!r} > agent.recom.lr_max={lr_max!r}: must be lr_min <= lr_max")
+    if _get(cfg, "agent.l2.enabled") is True and _get(cfg, "agent.l2_init.enabled") is True:
+        raise ConfigError("agent.l2.enabled=True and agent.l2_init.enabled=True: must be one of them (both set the "
+                          "optimizer's weight decay; L2 pulls toward 0, L2-Init toward theta_0)")
+    if _get(cfg, "agent.recom.enabled") is True and _get(cfg, "agent.ppo.lr_schedule") not in (_MISSING, "constant"):
+        raise ConfigError(f"agent.ppo.lr_schedule={_get(cfg, 'agent.ppo.lr_schedule')!r}: must be constant with "
+                          "agent.recom.enabled=True (RECOM sets the learning rate itself)")
     rollout = _get(cfg, "agent.ppo.n_steps") * _get(cfg, "env.n_envs")
     batch = _get(cfg, "agent.ppo.batch_size")
     if batch > rollout:

@@ -34,7 +34,7 @@ log = logging.getLogger("sweep")
 
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
-    tags = {"agent": cfg.agent.name, "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
+    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.get("label", cfg.agent.name), "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
             "learner": cfg.agent.learner, "sweep": "single", "job": "0"}
     if HydraConfig.initialized():
         hc = HydraConfig.get()

@@ -1,9 +1,8 @@
 """The learner (``agent.learner``: ``sb3`` = SB3 PPO, the reference; ``jax`` = the compiled equivalent) and
 the agent's remedies, built from the ``agent`` config group.
 
-Both learners are SB3 ``OnPolicyAlgorithm``s (same ``learn()``, logger and callbacks) and offer the same
-few extra methods: ``from_config``, ``use_l2``, ``parameter_arrays``, ``hidden_activations``, ``loss_grad_norm``,
-``learner_state`` / ``load_learner_state``.
+Both learners are SB3 ``OnPolicyAlgorithm``s (same ``learn()``, logger and callbacks) and implement one
+contract, ``sweep.agents.learner.Learner``, which is all that remedies, diagnostics and checkpoints use.
 """
 from __future__ import annotations
 
@@ -15,6 +14,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from sweep.agents.schedules import LRSchedule
+
 LEARNERS = {"sb3": "sweep.agents.sb3:SB3PPO", "jax": "sweep.agents.jax_ppo:JaxPPO"}
 
 
@@ -23,8 +24,12 @@ def build_learner(agent: DictConfig, env: VecEnv, seed: int) -> BaseAlgorithm:
     module, cls = LEARNERS[agent.learner].split(":")
     learner = getattr(importlib.import_module(module), cls)
     ppo = OmegaConf.to_container(agent.ppo, resolve=True)
+    kind, floor = ppo.pop("lr_schedule", "constant"), ppo.pop("lr_floor", 0.0)
+    if kind != "constant":
+        ppo["learning_rate"] = LRSchedule(kind, float(ppo["learning_rate"]), float(floor))
     p = agent.policy
-    return learner.from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed)
+    return learner.from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed,
+                               layer_norm=bool(p.get("layer_norm", False)))
 
 
 def build_remedies(agent: DictConfig) -> list[BaseCallback]:

@@ -3,20 +3,25 @@
 Same algorithm, hyperparameters and logged names as ``stable_baselines3.PPO`` with ``MlpPolicy``
 (tests/test_jax_learner.py holds them together):
 
-* networks: separate policy and value MLPs (``net_arch``, tanh or ReLU), a linear action head, a linear
-  value head and a state-independent ``log_std`` (starting at 0); parameters carry SB3's ``state_dict``
-  names and torch's (out, in) layout. Initial weights are those SB3's ``ActorCriticPolicy`` draws for
-  the same seed (orthogonal, gains sqrt(2) / 0.01 / 1, zero biases): built once with torch and copied.
+* networks: ``sweep.agents.networks`` (separate policy and value MLPs, optional LayerNorm, linear heads,
+  state-independent ``log_std``), SB3's ``state_dict`` names and torch's (out, in) layout. Initial weights
+  are those SB3's ``ActorCriticPolicy`` draws for the same seed: built once with torch and copied.
 * rollout: SB3's ``collect_rollouts`` (Gaussian actions, clipped only for the env, timeout bootstrap,
   GAE(lambda)), compiled for the hover env.
 * update, one jitted call per rollout: ``n_epochs`` epochs over minibatches of ``batch_size`` drawn
   with ``np.random.permutation`` (SB3's order and RNG), in a ``lax.scan``; per minibatch the advantages
   are normalised (Bessel-corrected std, as torch), the loss is the clipped surrogate + ``vf_coef`` x the
   unclipped value MSE + ``ent_coef`` x the entropy loss, the gradient is clipped to a global norm of
-  ``max_grad_norm`` and Adam (torch's defaults, ``eps`` from the config) takes the step.
+  ``max_grad_norm`` and Adam (torch's defaults, ``eps`` from the config) takes the step. With ``target_kl``,
+  the update stops at the first minibatch whose approx KL exceeds 1.5 x target_kl, before its step, as
+  SB3 does; the global RNG then advances by the permutations of the epochs that ran, as SB3's does.
 * the learning rate is an argument of that call, read from ``lr_schedule`` before every update as SB3
-  does, so RECOM's ``AdaptiveLR`` drives it unchanged; L2 (``use_l2``) is the same coupled
-  (Adam ``weight_decay``) or decoupled (AdamW) decay on the same parameters.
+  does, so RECOM's ``AdaptiveLR`` and ``agent.ppo.lr_schedule`` drive it unchanged; L2 (``use_l2``) is the
+  same coupled (Adam ``weight_decay``) or decoupled (AdamW) decay on the same parameters, toward 0 or
+  toward theta_0 (L2-Init).
+* the ``Learner`` contract (``sweep.agents.learner``). The weights live in three copies kept in step after
+  every write (``write_parameters``, an update, a checkpoint load): ``params`` (JAX), Adam's moments in
+  ``opt_state`` (same tree), and the compiled rollout's float32 export (``_export_weights``).
 
 It subclasses SB3's ``OnPolicyAlgorithm``, so ``learn()``, the logger, ``rollout/*`` and ``time/*``
 metrics, the episode buffer and every callback hook are SB3's own. One difference: callbacks'
@@ -38,7 +43,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 import math  # noqa: E402
 from functools import partial  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, Mapping  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -55,6 +60,8 @@ from stable_baselines3.common.utils import FloatSchedule, explained_variance  # 
 from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 
 from sweep.agents import rollout  # noqa: E402
+from sweep.agents.learner import Hidden  # noqa: E402
+from sweep.agents.networks import LAYER_NORM_EPS, Network, actor_critic, policy_class, remedy_rng  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu}
@@ -89,19 +96,23 @@ Params = dict[str, jax.Array]
 # ------------------------------------------------------------------------------------------------
 # The networks and the PPO loss, in SB3's terms (parameter names = ActorCriticPolicy.state_dict keys)
 # ------------------------------------------------------------------------------------------------
-def layer_names(prefix: str, n_hidden: int, head: str) -> list[str]:
-    """SB3 names of one network's Linear layers: ``<prefix>.0``, ``<prefix>.2``, ..., then the head."""
-    return [f"{prefix}.{2 * i}" for i in range(n_hidden)] + [head]
+def layer_norm(x: jax.Array, scale: jax.Array, shift: jax.Array) -> jax.Array:
+    """torch.nn.LayerNorm over the last axis (biased variance)."""
+    mean = x.mean(-1, keepdims=True)
+    var = ((x - mean) ** 2).mean(-1, keepdims=True)
+    return (x - mean) / jnp.sqrt(var + LAYER_NORM_EPS) * scale + shift
 
 
-def mlp_forward(params: Params, names: list[str], x: jax.Array, act) -> tuple[jax.Array, list[jax.Array]]:
-    """(output, hidden activations) of an SB3 MLP + head: Linear (x W^T + b) and ``act`` between layers."""
+def mlp_forward(params: Params, net: Network, x: jax.Array, act) -> tuple[jax.Array, list[tuple[jax.Array, jax.Array]]]:
+    """(output, [(pre, post) per hidden layer]) of an SB3 MLP + head: Linear (x W^T + b) [-> LayerNorm] -> ``act``."""
     hidden = []
-    for name in names[:-1]:
-        x = act(x @ params[f"{name}.weight"].T + params[f"{name}.bias"])
-        hidden.append(x)
-    head = names[-1]
-    return x @ params[f"{head}.weight"].T + params[f"{head}.bias"], hidden
+    for name, norm in zip(net.hidden, net.norms):
+        pre = x @ params[f"{name}.weight"].T + params[f"{name}.bias"]
+        if norm:
+            pre = layer_norm(pre, params[f"{norm}.weight"], params[f"{norm}.bias"])
+        x = act(pre)
+        hidden.append((pre, x))
+    return x @ params[f"{net.head}.weight"].T + params[f"{net.head}.bias"], hidden
 
 
 def gaussian_log_prob(actions, mean, log_std):
@@ -145,7 +156,8 @@ class JaxPPO(OnPolicyAlgorithm):
     def __init__(self, env: VecEnv, *, learning_rate: float = 3e-4, n_steps: int = 2048, batch_size: int = 64,
                  n_epochs: int = 10, gamma: float = 0.99, gae_lambda: float = 0.95, clip_range: float = 0.2,
                  ent_coef: float = 0.0, vf_coef: float = 0.5, max_grad_norm: float = 0.5,
-                 normalize_advantage: bool = True, net_arch: tuple[int, ...] = (64, 64), activation: str = "tanh",
+                 normalize_advantage: bool = True, target_kl: float | None = None,
+                 net_arch: tuple[int, ...] = (64, 64), activation: str = "tanh", layer_norm: bool = False,
                  adam_eps: float = 1e-5, seed: int | None = None, verbose: int = 0) -> None:
         super().__init__(ActorCriticPolicy, env, learning_rate=learning_rate, n_steps=n_steps, gamma=gamma,
                          gae_lambda=gae_lambda, ent_coef=ent_coef, vf_coef=vf_coef, max_grad_norm=max_grad_norm,
@@ -156,23 +168,26 @@ class JaxPPO(OnPolicyAlgorithm):
             raise ValueError(f"batch_size={batch_size} must divide the rollout size n_steps x n_envs = {rollout_size}")
         self.batch_size, self.n_epochs = int(batch_size), int(n_epochs)
         self.clip_range, self.normalize_advantage = clip_range, bool(normalize_advantage)
+        self.target_kl = None if target_kl is None else float(target_kl)
         self.net_arch, self.activation, self.adam_eps = tuple(int(h) for h in net_arch), activation, float(adam_eps)
+        self.layer_norm = bool(layer_norm)
         self.l2_spec: dict[str, Any] | None = None
         self._setup_model()
 
     @classmethod
     def from_config(cls, env: VecEnv, ppo: dict, net_arch: list[int], activation: str, adam_eps: float,
-                    seed: int) -> "JaxPPO":
-        return cls(env, **ppo, net_arch=net_arch, activation=activation, adam_eps=adam_eps, seed=seed)
+                    seed: int, layer_norm: bool = False) -> "JaxPPO":
+        return cls(env, **ppo, net_arch=net_arch, activation=activation, layer_norm=layer_norm, adam_eps=adam_eps,
+                   seed=seed)
 
     # ---- construction ---------------------------------------------------------------------------
     def torch_policy(self) -> ActorCriticPolicy:
         """An SB3 ``ActorCriticPolicy`` of this architecture (its parameters are SB3's initial draw)."""
         arch = list(self.net_arch)
-        return ActorCriticPolicy(self.observation_space, self.action_space, self.lr_schedule,
-                                 net_arch={"pi": arch, "vf": arch},
-                                 activation_fn=TORCH_ACTIVATIONS[self.activation],
-                                 optimizer_kwargs={"eps": self.adam_eps})
+        cls = policy_class(self.layer_norm)
+        cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
+        return cls(self.observation_space, self.action_space, self.lr_schedule, net_arch={"pi": arch, "vf": arch},
+                   activation_fn=TORCH_ACTIVATIONS[self.activation], optimizer_kwargs={"eps": self.adam_eps})
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
@@ -181,48 +196,57 @@ class JaxPPO(OnPolicyAlgorithm):
                                             gamma=self.gamma, gae_lambda=self.gae_lambda, n_envs=self.n_envs)
         self.policy = None  # no torch policy; ``to_sb3`` builds one
         self.clip_range_schedule = FloatSchedule(self.clip_range)
-        n_hidden = len(self.net_arch)
-        self._nets = (layer_names("mlp_extractor.policy_net", n_hidden, "action_net"),
-                      layer_names("mlp_extractor.value_net", n_hidden, "value_net"))
+        self.networks = self._nets = actor_critic(len(self.net_arch), self.layer_norm)
         self._act = ACTIVATIONS[self.activation]
-        self.params: Params = {k: jnp.asarray(v.numpy()) for k, v in self.torch_policy().state_dict().items()}
+        self._initial = {k: v.numpy().copy() for k, v in self.torch_policy().state_dict().items()}
+        self.params: Params = {k: jnp.asarray(v) for k, v in self._initial.items()}
         self.noise_rng = np.random.default_rng(self.seed)
+        self.rng = remedy_rng(self.seed or 0)
         self._build_optimizer()
 
     def _build_optimizer(self) -> None:
         """Adam (torch's betas, ``adam_eps``) after SB3's global-norm clip, with L2 if ``use_l2`` set it."""
-        l2 = self.l2_spec or {"coef": 0.0, "mode": "coupled", "params": (), "biases": True}
+        l2 = self.l2_spec or {"coef": 0.0, "mode": "coupled", "params": (), "biases": True, "anchor": "zero"}
         mask = {k: bool(l2["coef"]) and penalized(k, list(l2["params"]), l2["biases"]) for k in self.params}
         self.l2_decayed = sorted(k for k, on in mask.items() if on)
         coupled = l2["coef"] if l2["mode"] == "coupled" else 0.0
         decoupled = l2["coef"] if l2["mode"] == "decoupled" else 0.0
+        anchor = ({k: jnp.asarray(v) for k, v in self._initial.items()}
+                  if l2["anchor"] == "init" and l2["coef"] else None)
         transforms = [optax.clip_by_global_norm(self.max_grad_norm)]
-        if coupled:  # torch Adam(weight_decay): g <- g + coef * theta, before the moments
+        if coupled and anchor is None:  # torch Adam(weight_decay): g <- g + coef * theta, before the moments
             transforms.append(optax.add_decayed_weights(coupled, mask=mask))
+        elif coupled:  # L2-Init, coupled: g <- g + coef * (theta - theta_0)
+            transforms.append(_toward_anchor(coupled, mask, anchor))
         transforms.append(optax.scale_by_adam(b1=0.9, b2=0.999, eps=self.adam_eps))
         self._tx = optax.chain(*transforms)
         self.opt_state = self._tx.init(self.params)
         self._update = jax.jit(partial(
-            _update, tx=self._tx, decay=decoupled, mask=mask, n_epochs=self.n_epochs, batch_size=self.batch_size,
-            ent_coef=float(self.ent_coef), vf_coef=float(self.vf_coef), nets=self._nets, act=self._act,
-            normalize_advantage=self.normalize_advantage))
+            _update, tx=self._tx, decay=decoupled, mask=mask, anchor=anchor, n_epochs=self.n_epochs,
+            batch_size=self.batch_size, ent_coef=float(self.ent_coef), vf_coef=float(self.vf_coef), nets=self._nets,
+            act=self._act, normalize_advantage=self.normalize_advantage, target_kl=self.target_kl))
         self._activations = jax.jit(partial(_hidden, nets=self._nets, act=self._act))
         self._grad_norm = jax.jit(partial(_grad_norm, nets=self._nets, act=self._act, ent_coef=float(self.ent_coef),
                                           vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage))
         self._export_weights()
 
-    def use_l2(self, coef: float, mode: str = "coupled", params=("policy", "value"), biases: bool = True) -> None:
-        """L2 regularization (``sweep.plasticity.l2``): rebuilds the optimizer with the decay."""
-        self.l2_spec = {"coef": float(coef), "mode": mode, "params": tuple(params), "biases": bool(biases)}
+    def use_l2(self, coef: float, mode: str = "decoupled", params=("policy", "value"), biases: bool = True,
+               anchor: str = "zero") -> None:
+        """L2 regularization (``sweep.plasticity.l2``, ``l2_init``): rebuilds the optimizer with the decay."""
+        self.l2_spec = {"coef": float(coef), "mode": mode, "params": tuple(params), "biases": bool(biases),
+                        "anchor": anchor}
         self._build_optimizer()
 
     def _export_weights(self) -> None:
         """numba's copy of the networks: per layer (in, out) float32 weights, biases, and log_std."""
         host = {k: np.array(v, dtype=np.float32) for k, v in self.params.items()}  # writable copies
 
-        def layers(names):
-            return (tuple(np.ascontiguousarray(host[f"{n}.weight"].T) for n in names),
-                    tuple(np.ascontiguousarray(host[f"{n}.bias"]) for n in names))
+        def layers(net: Network):
+            norm = [(host[f"{n}.weight"], host[f"{n}.bias"]) if n else  # unused placeholders without LayerNorm
+                    (np.ones(w, np.float32), np.zeros(w, np.float32)) for n, w in zip(net.norms, self.net_arch)]
+            return (tuple(np.ascontiguousarray(host[f"{n}.weight"].T) for n in net.linears),
+                    tuple(np.ascontiguousarray(host[f"{n}.bias"]) for n in net.linears),
+                    tuple(np.ascontiguousarray(g) for g, _ in norm), tuple(np.ascontiguousarray(c) for _, c in norm))
         self._pi, self._vf = layers(self._nets[0]), layers(self._nets[1])
         self._log_std = np.ascontiguousarray(host["log_std"])
         self._relu = self.activation == "relu"
@@ -243,7 +267,7 @@ class JaxPPO(OnPolicyAlgorithm):
         t = 0
         while t < n_rollout_steps:
             t_next = rollout.fly(t, n_rollout_steps, obs, episode_starts, dones, noise, wind, *self._pi, *self._vf,
-                                 self._log_std, self._relu, self.gamma, buf.observations, buf.actions, buf.rewards,
+                                 self._log_std, self._relu, self.layer_norm, self.gamma, buf.observations, buf.actions, buf.rewards,
                                  buf.episode_starts, buf.values, buf.log_probs, *args)
             env.global_step += n * (t_next - t)
             self.num_timesteps += n * (t_next - t)
@@ -256,7 +280,7 @@ class JaxPPO(OnPolicyAlgorithm):
         buf.pos, buf.full = n_rollout_steps, True
         self._last_obs, self._last_episode_starts = obs, dones.copy()
         last_values = np.empty(n, np.float32)
-        rollout.values_of(obs, *self._vf, self._relu, last_values)
+        rollout.values_of(obs, *self._vf, self._relu, self.layer_norm, last_values)
         rollout.gae(buf.rewards, buf.values, buf.episode_starts, last_values, dones, self.gamma, self.gae_lambda,
                     buf.advantages, buf.returns)
         callback.update_locals({"infos": infos, "dones": dones, "new_obs": obs, "values": last_values})
@@ -280,18 +304,25 @@ class JaxPPO(OnPolicyAlgorithm):
         batch = self.rollout_batch()
         values = batch.pop("values")
         size = len(batch["advantages"])
+        rng_before = np.random.get_state() if self.target_kl is not None else None
         order = np.stack([np.random.permutation(size) for _ in range(self.n_epochs)])  # SB3's draws
         self.params, self.opt_state, stats = self._update(self.params, self.opt_state, batch, order, lr, clip_range)
         self._export_weights()
-        self._n_updates += self.n_epochs
-        pg, vf, ent, clip_frac, kl, loss = (np.asarray(s) for s in stats)
+        pg, vf, ent, clip_frac, kl, loss, computed = (np.asarray(s) for s in stats)
         per_epoch = size // self.batch_size
-        self.logger.record("train/entropy_loss", float(ent.mean()))
-        self.logger.record("train/policy_gradient_loss", float(pg.mean()))
-        self.logger.record("train/value_loss", float(vf.mean()))
-        self.logger.record("train/approx_kl", float(kl[-per_epoch:].mean()))  # SB3: the last epoch's
-        self.logger.record("train/clip_fraction", float(clip_frac.mean()))
-        self.logger.record("train/loss", float(loss[-1]))  # SB3: the last minibatch's
+        n = int(computed.sum())  # minibatches whose loss was computed (all, unless target_kl stopped the update)
+        epochs = -(-n // per_epoch)
+        if epochs < self.n_epochs:  # SB3 drew only the permutations of the epochs it ran
+            np.random.set_state(rng_before)
+            for _ in range(epochs):
+                np.random.permutation(size)
+        self._n_updates += epochs
+        self.logger.record("train/entropy_loss", float(ent[:n].mean()))
+        self.logger.record("train/policy_gradient_loss", float(pg[:n].mean()))
+        self.logger.record("train/value_loss", float(vf[:n].mean()))
+        self.logger.record("train/approx_kl", float(kl[(epochs - 1) * per_epoch:n].mean()))  # SB3: the last epoch's
+        self.logger.record("train/clip_fraction", float(clip_frac[:n].mean()))
+        self.logger.record("train/loss", float(loss[n - 1]))  # SB3: the last minibatch's
         self.logger.record("train/explained_variance", explained_variance(values, batch["returns"]))
         self.logger.record("train/std", float(np.exp(self._log_std).mean()))
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
@@ -301,18 +332,48 @@ class JaxPPO(OnPolicyAlgorithm):
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):
         obs = np.ascontiguousarray(np.atleast_2d(observation), dtype=np.float32)
         mean = np.empty((len(obs), self.action_space.shape[0]), np.float32)
-        rollout.actions_of(obs, *self._pi, self._relu, mean)
+        rollout.actions_of(obs, *self._pi, self._relu, self.layer_norm, mean)
         if not deterministic:
             mean = mean + np.exp(self._log_std) * self.noise_rng.standard_normal(mean.shape, dtype=np.float32)
         return np.clip(mean, -1.0, 1.0), state
 
+    @property
+    def minibatches_per_update(self) -> int:
+        return self.n_epochs * (self.n_steps * self.n_envs // self.batch_size)
+
     def parameter_arrays(self) -> dict[str, np.ndarray]:
         return {k: np.array(v) for k, v in self.params.items()}  # copies
 
-    def hidden_activations(self, obs: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Hidden-layer activations of the policy and of the value network on ``obs``."""
+    def write_parameters(self, arrays: Mapping[str, np.ndarray]) -> None:
+        """New values of the named parameters; the compiled rollout's copy follows (Adam's moments are left)."""
+        for name, value in arrays.items():
+            if np.shape(value) != self.params[name].shape:
+                raise ValueError(f"{name}: shape {np.shape(value)} != {self.params[name].shape}")
+            self.params[name] = jnp.asarray(np.asarray(value, np.float32))
+        self._export_weights()
+
+    def initial_parameters(self) -> dict[str, np.ndarray]:
+        return {k: v.copy() for k, v in self._initial.items()}
+
+    def _adam(self) -> optax.ScaleByAdamState:
+        return next(s for s in self.opt_state if isinstance(s, optax.ScaleByAdamState))
+
+    def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        adam = self._adam()
+        return {k: (np.array(adam.mu[k]), np.array(adam.nu[k])) for k in self.params}
+
+    def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
+        adam = self._adam()
+        keep = {k: jnp.asarray(~np.asarray(masks[k], bool)) if k in masks else None for k in adam.mu}
+        zeroed = adam._replace(mu={k: v * keep[k] if keep[k] is not None else v for k, v in adam.mu.items()},
+                               nu={k: v * keep[k] if keep[k] is not None else v for k, v in adam.nu.items()})
+        self.opt_state = tuple(zeroed if isinstance(s, optax.ScaleByAdamState) else s for s in self.opt_state)
+
+    def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
+        """Per network, each hidden layer's (input of the activation, its output) on ``obs``."""
         pi_hidden, vf_hidden = self._activations(self.params, np.asarray(obs, np.float32))
-        return [np.asarray(h) for h in pi_hidden], [np.asarray(h) for h in vf_hidden]
+        return {"policy": [Hidden(np.asarray(a), np.asarray(b)) for a, b in pi_hidden],
+                "value": [Hidden(np.asarray(a), np.asarray(b)) for a, b in vf_hidden]}
 
     def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1), before clipping."""
@@ -321,7 +382,7 @@ class JaxPPO(OnPolicyAlgorithm):
 
     def learner_state(self) -> dict[str, Any]:
         return {"params": self.parameter_arrays(), "opt_state": jax.tree.map(np.asarray, self.opt_state),
-                "noise_rng": self.noise_rng.bit_generator.state}
+                "noise_rng": self.noise_rng.bit_generator.state, "rng": self.rng.bit_generator.state}
 
     def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
         self.params = {k: jnp.asarray(v) for k, v in state["params"].items()}
@@ -329,14 +390,16 @@ class JaxPPO(OnPolicyAlgorithm):
         if optimizer:
             self.opt_state = jax.tree.map(jnp.asarray, state["opt_state"])
             self.noise_rng.bit_generator.state = state["noise_rng"]
+            if "rng" in state:
+                self.rng.bit_generator.state = state["rng"]
 
     def to_sb3(self) -> PPO:
         """An SB3 ``PPO`` with this learner's weights (``PPO.load``-able once saved)."""
         arch = list(self.net_arch)
-        model = PPO("MlpPolicy", self.env, learning_rate=self.learning_rate, n_steps=self.n_steps,
+        model = PPO(policy_class(self.layer_norm), self.env, learning_rate=self.learning_rate, n_steps=self.n_steps,
                     batch_size=self.batch_size, n_epochs=self.n_epochs, gamma=self.gamma, gae_lambda=self.gae_lambda,
                     clip_range=self.clip_range, ent_coef=self.ent_coef, vf_coef=self.vf_coef,
-                    max_grad_norm=self.max_grad_norm, device="cpu",
+                    max_grad_norm=self.max_grad_norm, target_kl=self.target_kl, device="cpu",
                     policy_kwargs={"net_arch": {"pi": arch, "vf": arch},
                                    "activation_fn": TORCH_ACTIVATIONS[self.activation],
                                    "optimizer_kwargs": {"eps": self.adam_eps}})
@@ -352,27 +415,48 @@ class JaxPPO(OnPolicyAlgorithm):
 # ------------------------------------------------------------------------------------------------
 # Jitted functions (module level so the partials above only bind static settings)
 # ------------------------------------------------------------------------------------------------
-def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask, n_epochs, batch_size,
-            ent_coef, vf_coef, nets, act, normalize_advantage):
-    """``n_epochs`` x (rollout / batch_size) minibatch steps in one ``lax.scan``; returns per-step stats."""
+def _toward_anchor(coef: float, mask: dict[str, bool], anchor: Params) -> optax.GradientTransformation:
+    """Coupled L2-Init: g <- g + coef * (theta - theta_0) on the masked parameters (before Adam's moments)."""
+    def update(grads, state, params):
+        return {k: grads[k] + coef * (params[k] - anchor[k]) if mask[k] else grads[k] for k in grads}, state
+    return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
+
+
+def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask, anchor, n_epochs, batch_size,
+            ent_coef, vf_coef, nets, act, normalize_advantage, target_kl):
+    """``n_epochs`` x (rollout / batch_size) minibatch steps in one ``lax.scan``; returns per-step stats and
+    whether each step's loss was computed (SB3 stops at the first step whose approx KL > 1.5 target_kl)."""
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
 
     def step(carry, idx):
-        params, opt_state = carry
+        params, opt_state, stopped = carry
         mb = {k: v[idx] for k, v in batch.items()}
         (loss, aux), grads = grad_fn(params, mb, clip_range, ent_coef, vf_coef, nets, act, normalize_advantage)
-        updates, opt_state = tx.update(grads, opt_state, params)
+        new_opt_state = tx.update(grads, opt_state, params)
+        updates, new_opt_state = new_opt_state
         # decoupled (AdamW) decay first, as torch does: theta <- theta * (1 - lr * coef) - lr * adam_update
-        shrunk = {k: params[k] * (1.0 - lr * decay) if decay and mask[k] else params[k] for k in params}
-        return ({k: shrunk[k] - lr * updates[k] for k in params}, opt_state), (*aux, loss)
+        # (L2-Init: theta <- theta - lr * coef * (theta - theta_0) - lr * adam_update)
+        if anchor is None:
+            shrunk = {k: params[k] * (1.0 - lr * decay) if decay and mask[k] else params[k] for k in params}
+        else:
+            shrunk = {k: params[k] - lr * decay * (params[k] - anchor[k]) if decay and mask[k] else params[k]
+                      for k in params}
+        new_params = {k: shrunk[k] - lr * updates[k] for k in params}
+        computed = jnp.logical_not(stopped)
+        if target_kl is not None:
+            stop = stopped | (aux[4] > 1.5 * target_kl)
+            new_params = jax.tree.map(lambda new, old: jnp.where(stop, old, new), new_params, params)
+            new_opt_state = jax.tree.map(lambda new, old: jnp.where(stop, old, new), new_opt_state, opt_state)
+            stopped = stop
+        return (new_params, new_opt_state, stopped), (*aux, loss, computed)
 
     minibatches = order.reshape(-1, batch_size)
-    (params, opt_state), stats = jax.lax.scan(step, (params, opt_state), minibatches)
+    (params, opt_state, _), stats = jax.lax.scan(step, (params, opt_state, jnp.asarray(False)), minibatches)
     return params, opt_state, stats
 
 
 def _hidden(params, obs, *, nets, act):
-    """Hidden activations of the policy and of the value network."""
+    """(pre, post) hidden activations of the policy and of the value network."""
     return mlp_forward(params, nets[0], obs, act)[1], mlp_forward(params, nets[1], obs, act)[1]
 
 

@@ -15,7 +15,8 @@ The env step is the env's own compiled pieces: the fast backend's ``_step_loop``
 ``task_outcome`` (observation, reward, termination), so the task is the one ``HoverVecEnv.step`` runs.
 ``gae`` is SB3's ``RolloutBuffer.compute_returns_and_advantage``.
 
-The networks run here in float32 from weights laid out (in, out) per layer (``mlp``); the JAX
+The networks run here in float32 from weights laid out (in, out) per layer, with the LayerNorm's scale and
+shift per hidden layer (``mlp``; unused without ``layer_norm``); the JAX
 learner re-exports them after every update. ``tanh`` is the float32 rational approximation XLA's CPU
 backend (Eigen) evaluates: within 2.6e-7 of tanh, bit-identical to ``jnp.tanh`` for ~80% of inputs
 (libm's: ~30%), and it vectorises, so the rollout's policy is the update's policy, 3x cheaper.
@@ -53,9 +54,9 @@ def tanh(x):
 
 
 @numba.njit(cache=True, fastmath=True)
-def mlp(x, weights, biases, relu, h_in, h_out, out):
-    """out = MLP(x) for one input row: hidden layers tanh (or ReLU), linear output. ``h_in``/``h_out`` are
-    scratch rows at least as wide as the widest layer."""
+def mlp(x, weights, biases, scales, shifts, relu, layer_norm, h_in, h_out, out):
+    """out = MLP(x) for one input row: hidden layers Linear [-> LayerNorm(scale, shift)] -> tanh (or ReLU), linear
+    output. ``h_in``/``h_out`` are scratch rows at least as wide as the widest layer."""
     n_layers = len(weights)
     for k in range(x.shape[0]):
         h_in[k] = x[k]
@@ -70,13 +71,25 @@ def mlp(x, weights, biases, relu, h_in, h_out, out):
             for j in range(n_out):
                 dst[j] += xk * w[k, j]
         if layer < n_layers - 1:
+            if layer_norm:  # torch.nn.LayerNorm: biased variance, eps 1e-5
+                mean = np.float32(0.0)
+                for j in range(n_out):
+                    mean += h_out[j]
+                mean /= np.float32(n_out)
+                var = np.float32(0.0)
+                for j in range(n_out):
+                    var += (h_out[j] - mean) * (h_out[j] - mean)
+                inv = np.float32(1.0) / np.sqrt(var / np.float32(n_out) + np.float32(1e-5))
+                g, c = scales[layer], shifts[layer]
+                for j in range(n_out):
+                    h_out[j] = (h_out[j] - mean) * inv * g[j] + c[j]
             for j in range(n_out):
                 h_in[j] = max(h_out[j], np.float32(0.0)) if relu else tanh(h_out[j])
 
 
 @numba.njit(cache=True)
 def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
-        pi_w, pi_b, vf_w, vf_b, log_std, relu, gamma,
+        pi_w, pi_b, pi_g, pi_c, vf_w, vf_b, vf_g, vf_c, log_std, relu, layer_norm, gamma,
         buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
         x, v, q, w, rotor_speeds, dt, geo, rdir, inertia, inv_inertia, c_d, scal, speed_min, speed_max,
         t_idx, ep_return, reward_scale, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
@@ -105,8 +118,8 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
     wind_now = np.empty((n, 3))
     while t < n_steps:
         for i in range(n):
-            mlp(obs[i], pi_w, pi_b, relu, h_in, h_out, mean)
-            mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+            mlp(obs[i], pi_w, pi_b, pi_g, pi_c, relu, layer_norm, h_in, h_out, mean)
+            mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
             log_prob = 0.0
             for a in range(n_act):
                 eps = noise[t, i, a]
@@ -133,7 +146,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
             ep_return[i] += rewards[i]
             reward = rewards[i] * np.float32(reward_scale)
             if truncated[i]:
-                mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+                mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
                 reward += np.float32(gamma) * value[0]
             buf_rewards[t, i] = reward
             dones[i] = terminated[i] or truncated[i]
@@ -146,7 +159,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
 
 
 @numba.njit(cache=True)
-def values_of(obs, vf_w, vf_b, relu, out):
+def values_of(obs, vf_w, vf_b, vf_g, vf_c, relu, layer_norm, out):
     """V(obs) for every row of ``obs``."""
     width = obs.shape[1]
     for layer in range(len(vf_w)):
@@ -155,12 +168,12 @@ def values_of(obs, vf_w, vf_b, relu, out):
     h_out = np.empty(width, np.float32)
     value = np.empty(1, np.float32)
     for i in range(obs.shape[0]):
-        mlp(obs[i], vf_w, vf_b, relu, h_in, h_out, value)
+        mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
         out[i] = value[0]
 
 
 @numba.njit(cache=True)
-def actions_of(obs, pi_w, pi_b, relu, out):
+def actions_of(obs, pi_w, pi_b, pi_g, pi_c, relu, layer_norm, out):
     """The Gaussian's mean mu(obs) for every row of ``obs`` (the deterministic action, unclipped)."""
     width = obs.shape[1]
     for layer in range(len(pi_w)):
@@ -168,7 +181,7 @@ def actions_of(obs, pi_w, pi_b, relu, out):
     h_in = np.empty(width, np.float32)
     h_out = np.empty(width, np.float32)
     for i in range(obs.shape[0]):
-        mlp(obs[i], pi_w, pi_b, relu, h_in, h_out, out[i])
+        mlp(obs[i], pi_w, pi_b, pi_g, pi_c, relu, layer_norm, h_in, h_out, out[i])
 
 
 @numba.njit(cache=True)

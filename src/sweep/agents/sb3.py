@@ -1,13 +1,13 @@
-"""``SB3PPO``: Stable-Baselines3's PPO, unchanged, plus the few methods the project asks of a learner.
+"""``SB3PPO``: Stable-Baselines3's PPO, unchanged, implementing the project's ``Learner`` contract.
 
 The reference learner (``agent.learner=sb3``): SB3 PPO with ``MlpPolicy`` as the paper used it
-(Sec. III-E: SB3 defaults, 64x64 tanh, Adam, batch 64). The added methods (``use_l2``,
-``parameter_arrays``, ``hidden_activations``, ``loss_grad_norm``, ``learner_state``) are what
-remedies, diagnostics and checkpoints call, on this learner and on ``JaxPPO`` alike.
+(Sec. III-E: SB3 defaults, 64x64 tanh, Adam, batch 64). The contract's methods
+(``sweep.agents.learner.Learner``) are what remedies, diagnostics and checkpoints call, on this learner and
+on ``JaxPPO`` alike; this module is the only place that reaches into SB3's policy and optimizer.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import torch
@@ -15,6 +15,8 @@ import torch.nn.functional as F
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecEnv
 
+from sweep.agents.learner import Hidden
+from sweep.agents.networks import actor_critic, policy_class, remedy_rng
 from sweep.plasticity.l2 import l2_optimizer
 
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
@@ -23,27 +25,70 @@ ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 class SB3PPO(PPO):
     @classmethod
     def from_config(cls, env: VecEnv, ppo: dict, net_arch: list[int], activation: str, adam_eps: float,
-                    seed: int) -> "SB3PPO":
+                    seed: int, layer_norm: bool = False) -> "SB3PPO":
         policy_kwargs = {"net_arch": {"pi": list(net_arch), "vf": list(net_arch)},
                          "activation_fn": ACTIVATIONS[activation],
                          "optimizer_class": torch.optim.Adam, "optimizer_kwargs": {"eps": float(adam_eps)}}
-        return cls("MlpPolicy", env, policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0, **ppo)
+        model = cls(policy_class(layer_norm), env, policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0,
+                    **ppo)
+        model.networks = actor_critic(len(net_arch), layer_norm)
+        model.rng = remedy_rng(seed)
+        model._initial = model.parameter_arrays()
+        return model
 
-    def use_l2(self, coef: float, mode: str = "coupled", params=("policy", "value"), biases: bool = True) -> None:
-        self.policy.optimizer = l2_optimizer(self.policy, coef, mode, tuple(params), biases)
-        names = {id(p): n for n, p in self.policy.named_parameters()}
-        self.l2_decayed = sorted(names[id(p)] for p in self.policy.optimizer.param_groups[0]["params"])
+    @property
+    def minibatches_per_update(self) -> int:
+        return self.n_epochs * -(-self.n_steps * self.n_envs // self.batch_size)
 
+    # ---- parameters ----------------------------------------------------------------------------------
     def parameter_arrays(self) -> dict[str, np.ndarray]:
         return {k: v.detach().numpy().copy() for k, v in self.policy.state_dict().items()}
 
-    def hidden_activations(self, obs: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Hidden-layer activations of the policy and of the value network on ``obs``."""
+    def write_parameters(self, arrays: Mapping[str, np.ndarray]) -> None:
+        params = dict(self.policy.named_parameters())
+        with torch.no_grad():
+            for name, value in arrays.items():
+                params[name].copy_(torch.as_tensor(np.asarray(value, np.float32)))
+
+    def initial_parameters(self) -> dict[str, np.ndarray]:
+        return {k: v.copy() for k, v in self._initial.items()}
+
+    def use_l2(self, coef: float, mode: str = "decoupled", params=("policy", "value"), biases: bool = True,
+               anchor: str = "zero") -> None:
+        anchors = {k: torch.as_tensor(v) for k, v in self._initial.items()} if anchor == "init" else None
+        self.policy.optimizer = l2_optimizer(self.policy, coef, mode, tuple(params), biases, anchors)
+        names = {id(p): n for n, p in self.policy.named_parameters()}
+        self.l2_decayed = sorted(names[id(p)] for p in self.policy.optimizer.param_groups[0]["params"])
+
+    # ---- optimizer -----------------------------------------------------------------------------------
+    def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        state = self.policy.optimizer.state
+        out = {}
+        for name, p in self.policy.named_parameters():
+            s = state.get(p, {})
+            zeros = np.zeros(tuple(p.shape), np.float32)
+            out[name] = (s["exp_avg"].numpy().copy() if "exp_avg" in s else zeros,
+                         s["exp_avg_sq"].numpy().copy() if "exp_avg_sq" in s else zeros.copy())
+        return out
+
+    def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
+        params = dict(self.policy.named_parameters())
+        with torch.no_grad():
+            for name, mask in masks.items():
+                s = self.policy.optimizer.state.get(params[name], {})
+                keep = torch.as_tensor(~np.asarray(mask, bool))
+                for key in ("exp_avg", "exp_avg_sq"):
+                    if key in s:
+                        s[key].mul_(keep)
+
+    # ---- activations and gradients -------------------------------------------------------------------
+    def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
+        """Per network, each hidden layer's (input of the activation, its output) on ``obs``."""
         policy = self.policy
         with torch.no_grad():
             features = policy.extract_features(torch.as_tensor(obs, dtype=torch.float32), policy.pi_features_extractor)
-            return (_activations(policy.mlp_extractor.policy_net, features),
-                    _activations(policy.mlp_extractor.value_net, features))
+            return {"policy": _activations(policy.mlp_extractor.policy_net, features),
+                    "value": _activations(policy.mlp_extractor.value_net, features)}
 
     def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1, so no clipping), as SB3 computes it."""
@@ -58,20 +103,25 @@ class SB3PPO(PPO):
         grads = torch.autograd.grad(loss, [p for p in self.policy.parameters() if p.requires_grad], allow_unused=True)
         return float(torch.sqrt(sum((g ** 2).sum() for g in grads if g is not None)))
 
+    # ---- checkpoints ---------------------------------------------------------------------------------
     def learner_state(self) -> dict[str, Any]:
-        return {"policy": self.policy.state_dict(), "optimizer": self.policy.optimizer.state_dict()}
+        return {"policy": self.policy.state_dict(), "optimizer": self.policy.optimizer.state_dict(),
+                "rng": self.rng.bit_generator.state}
 
     def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
         self.policy.load_state_dict(state["policy"])
         if optimizer:
             self.policy.optimizer.load_state_dict(state["optimizer"])
+            if "rng" in state:
+                self.rng.bit_generator.state = state["rng"]
 
 
-def _activations(mlp: torch.nn.Sequential, x: torch.Tensor) -> list[np.ndarray]:
-    """Outputs of every activation module of an SB3 MLP (Linear, act, Linear, act, ...)."""
+def _activations(mlp: torch.nn.Sequential, x: torch.Tensor) -> list[Hidden]:
+    """(pre, post) of every activation module of an SB3 MLP (Linear[, LayerNorm], act, ...)."""
     out = []
     for module in mlp:
+        pre = x
         x = module(x)
-        if not isinstance(module, torch.nn.Linear):
-            out.append(x.numpy())
+        if not isinstance(module, (torch.nn.Linear, torch.nn.LayerNorm)):
+            out.append(Hidden(pre.numpy(), x.numpy()))
     return out

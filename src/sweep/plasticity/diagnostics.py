@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep.plasticity.batch import recent_rollout
 from sweep.plasticity.dormant import dormant_ratio, saturated_ratio, srank
 
 
@@ -45,21 +46,12 @@ class PlasticityDiagnostics(BaseCallback):
             for key, value in self.measure().items():
                 self.logger.record(f"plasticity/{key}", value)
 
-    def _recent_batch(self):
-        buf = self.model.rollout_buffer
-        if buf.generator_ready:  # SB3 already flattened it for an update (env-major order)
-            flat = lambda a: a  # noqa: E731
-        else:  # (steps, envs, ...) -> (steps*envs, ...), most recent steps last
-            flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
-        n = buf.buffer_size * buf.n_envs
-        idx = slice(max(0, n - self.batch_size), n)
-        return (flat(buf.observations)[idx], flat(buf.actions)[idx], flat(buf.advantages)[idx].ravel(),
-                flat(buf.returns)[idx].ravel())
-
     def measure(self) -> dict[str, float]:
         model = self.model
-        obs, actions, advantages, returns = self._recent_batch()
-        pi_layers, vf_layers = model.hidden_activations(obs)
+        obs, actions, advantages, returns = recent_rollout(model.rollout_buffer, self.batch_size)
+        activations = model.hidden_activations(obs)
+        pi_layers = [h.post for h in activations["policy"]]
+        vf_layers = [h.post for h in activations["value"]]
         stats: dict[str, float] = {}
         stats["dormant_ratio"], per_layer = dormant_ratio(pi_layers, self.tau)
         for i, r in enumerate(per_layer):

@@ -1,4 +1,4 @@
-"""L2 regularization for PPO (paper Sec. III-E), coupled as in Dohare et al. 2024.
+"""L2 regularization for PPO (paper Sec. III-E): decay toward 0, or toward theta_0 (``anchor``, L2-Init).
 
 ``coupled``: Adam(weight_decay=coef) adds coef*theta to the gradient, i.e. the gradient of an explicit
 penalty (coef/2)*||theta||^2 on the loss, before Adam's normalisation. ``decoupled``: AdamW (weight
@@ -6,6 +6,10 @@ decay applied outside Adam's moments). ``params`` chooses the penalized networks
 action head, value = critic MLP + value head, log_std = the Gaussian's log std) and ``biases`` whether
 bias vectors are included; everything else sits in a second param group with weight_decay 0.
 Adam's eps and betas are copied from SB3's optimizer, so the only difference from plain PPO is L2.
+
+``anchor=init`` (``sweep.plasticity.l2_init``) pulls toward the initial parameters theta_0 instead of 0: the
+penalty (coef/2)*||theta - theta_0||^2, coupled (g += coef*(theta - theta_0)) or decoupled
+(theta -= lr*coef*(theta - theta_0) before Adam's step, as AdamW orders it).
 """
 from __future__ import annotations
 
@@ -26,28 +30,64 @@ def penalized(name: str, params: list[str], biases: bool) -> bool:
     return any(name.startswith(prefix) for group in params for prefix in GROUPS[group])
 
 
-def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "coupled",
-                 params: tuple[str, ...] = ("policy", "value"), biases: bool = True) -> torch.optim.Optimizer:
-    """A copy of ``policy.optimizer`` (same lr, betas, eps) with weight decay on the chosen parameters."""
+MODES, ANCHORS = ("coupled", "decoupled"), ("zero", "init")
+
+
+class AnchoredAdam(torch.optim.Adam):
+    """Adam whose param groups may carry ``anchors`` (theta_0), ``anchor_coef`` and ``anchor_mode``: L2 toward
+    the anchors, coupled (added to the gradient before the moments) or decoupled (applied to the parameters
+    before Adam's step)."""
+
+    @torch.no_grad()
+    def step(self, closure=None):
+        for group in self.param_groups:
+            coef = group.get("anchor_coef", 0.0)
+            for p, p0 in zip(group["params"], group.get("anchors", ())) if coef else ():
+                if group["anchor_mode"] == "coupled":
+                    if p.grad is not None:
+                        p.grad.add_(p - p0, alpha=coef)
+                else:
+                    p.sub_(p - p0, alpha=group["lr"] * coef)
+        return super().step(closure)
+
+
+def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled",
+                 params: tuple[str, ...] = ("policy", "value"), biases: bool = True,
+                 anchors: dict[str, torch.Tensor] | None = None) -> torch.optim.Optimizer:
+    """A copy of ``policy.optimizer`` (same lr, betas, eps) with weight decay on the chosen parameters, toward 0
+    or, given ``anchors`` (name -> theta_0), toward them."""
     old = policy.optimizer.param_groups[0]
-    decay, rest = [], []
+    decay, rest, names = [], [], []
     for name, p in policy.named_parameters():
-        (decay if penalized(name, list(params), biases) else rest).append(p)
+        if penalized(name, list(params), biases):
+            decay.append(p)
+            names.append(name)
+        else:
+            rest.append(p)
+    kwargs = {"lr": old["lr"], "betas": old["betas"], "eps": old["eps"]}
+    if anchors is not None:
+        group = {"params": decay, "anchors": [anchors[n].detach().clone() for n in names], "anchor_coef": coef,
+                 "anchor_mode": mode}
+        return AnchoredAdam([group, {"params": rest}], **kwargs)
     cls = torch.optim.Adam if mode == "coupled" else torch.optim.AdamW
     groups = [{"params": decay, "weight_decay": coef}, {"params": rest, "weight_decay": 0.0}]
-    return cls(groups, lr=old["lr"], betas=old["betas"], eps=old["eps"])
+    return cls(groups, **kwargs)
 
 
 class L2Regularization(BaseCallback):
     """Switches the learner's L2 on when training starts (SB3: ``l2_optimizer``; JAX: the same decay in
     its optax chain, ``sweep.agents.jax_ppo``)."""
 
-    def __init__(self, coef: float = 1e-3, mode: str = "coupled", params=("policy", "value"), biases: bool = True):
+    anchor = "zero"
+
+    def __init__(self, coef: float = 1e-3, mode: str = "decoupled", params=("policy", "value"), biases: bool = True):
         super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"mode={mode!r}; allowed: {list(MODES)}")
         self.coef, self.mode, self.params, self.biases = float(coef), mode, tuple(params), bool(biases)
 
     def _init_callback(self) -> None:
-        self.model.use_l2(self.coef, self.mode, self.params, self.biases)
+        self.model.use_l2(self.coef, self.mode, self.params, self.biases, anchor=self.anchor)
 
     def _on_step(self) -> bool:
         return True

@@ -1,10 +1,11 @@
 """Conditions: what the report aggregates over seeds, an agent plus the values of the ``--by`` params.
 
-Without ``--by`` a condition is an agent. With ``--by agent.l2.coef,agent.l2.mode`` it is (agent, coef, mode),
-labelled "L2 + PPO (coef=0.001, mode=decoupled)" (a key is shown by its last path component, more components
-where two keys would read the same). A setting of a component the run switched off (an enclosing ``enabled``
-param is false, e.g. ``agent.l2.coef`` of a PPO run, whose ``agent.l2.enabled`` is False) does not apply: it is
-``NA``, left out of the label, and does not split the agent's runs.
+Without ``--by`` a condition is an agent, labelled with the ``label:`` of its YAML as its runs logged it (e.g.
+"L2 + PPO"). With ``--by agent.l2.coef,agent.l2.mode`` it is (agent, coef, mode), labelled "L2 + PPO (coef=0.001,
+mode=decoupled)" (a key is shown by its last path component, more components where two keys would read the same).
+A setting of a component the run switched off (an enclosing ``enabled`` param is false, e.g. ``agent.l2.coef`` of
+a PPO run, whose ``agent.l2.enabled`` is False) does not apply: it is ``NA``, left out of the label, and does not
+split the agent's runs.
 """
 from __future__ import annotations
 
@@ -51,10 +52,12 @@ def _value_order(v: str) -> tuple:
 @dataclass
 class Conditions:
     """The conditions of a report: ``table`` has one row per condition (index: its label; columns: agent and
-    the --by keys), in display order; ``looks`` maps a label to its (colour, line style)."""
+    the --by keys), in display order; ``looks`` maps a label to its (colour, line style); ``labels`` an agent to
+    its label (a condition's label without the --by values)."""
     by: list[str]
     table: pd.DataFrame
     looks: dict[str, tuple]
+    labels: dict[str, str]
 
     @property
     def order(self) -> list[str]:
@@ -72,12 +75,21 @@ def build(runs: pd.DataFrame, by: list[str]) -> tuple[pd.DataFrame, Conditions]:
     short = short_names(by)
     fields = ["agent", *by]
     table = runs[fields].drop_duplicates().copy()
-    rank = {a: i for i, a in enumerate(style.ordered(table["agent"]))}
+    label = agent_labels(runs)
+    rank = {a: i for i, a in enumerate(style.ordered(table["agent"], key=lambda a: label[a].casefold()))}
     table = table.sort_values(fields, key=lambda col: col.map(rank) if col.name == "agent" else col.map(_value_order))
-    table.index = [style.label(row["agent"]) + _suffix(row, by, short) for _, row in table.iterrows()]
+    table.index = [label[row["agent"]] + _suffix(row, by, short) for _, row in table.iterrows()]
     labels = {tuple(row[fields]): cond for cond, row in table.iterrows()}
     runs = runs.assign(condition=[labels[tuple(r)] for r in runs[fields].itertuples(index=False)])
-    return runs, Conditions(by, table, style.looks(dict(zip(table.index, table["agent"]))))
+    return runs, Conditions(by, table, style.looks(dict(zip(table.index, table["agent"]))), label)
+
+
+def agent_labels(runs: pd.DataFrame) -> dict[str, str]:
+    """Agent -> its legend label: the label its newest run logged (load.agent_label), followed by the agent's
+    name in brackets where several agents share a label."""
+    label = runs.sort_values("start_time").groupby("agent")["label"].last()
+    shared = label.duplicated(keep=False)
+    return {agent: f"{text} [{agent}]" if shared[agent] else text for agent, text in label.items()}
 
 
 def _suffix(row: pd.Series, by: list[str], short: dict[str, str]) -> str:

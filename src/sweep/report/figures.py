@@ -45,7 +45,8 @@ CURVES = {
                    Curve("train/approx_kl", "Approx. KL\nper update", logy=True),
                    Curve("train/clip_fraction", "Clip fraction (%)", 100.0, percent=True)],
 }
-BAND = "mean over seeds; band: 95% bootstrap CI"
+BAND = "mean over n seeds; band: 95% bootstrap CI"
+POSITION_COLUMNS = 4  # conditions side by side in eval_position_axes
 
 
 def save(fig, out: Path, stem: str) -> list[Path]:
@@ -114,20 +115,28 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
     x_max = max(float(h["step"].max()) for _, h in panels)
     fig, axes = plt.subplots(len(panels), 1, figsize=(style.COLUMN_WIDTH, 2.3 + 1.4 * (len(panels) - 1)),
                              sharex=True, squeeze=False)
-    axes, seeds = axes[:, 0], {}
+    axes, seeds = axes[:, 0], []
     spans = wind_changes(sub.iloc[0]["speeds"], sub.iloc[0]["segment_steps"], x_max)
     for i, (ax, (curve, hist)) in enumerate(zip(axes, panels)):
-        seeds.update(_panel(ax, curve, hist, sub, conds))
+        seeds.append(_panel(ax, curve, hist, sub, conds))
         ax.set_xlim(0, x_max * (1.05 if len(stats.common_grid(hist)) == 1 or curve.sparse else 1.0))
         mark_wind(ax, spans, speeds=i == 0)
     timestep_axis(axes[-1], x_max)
     drop = 0.22 if len(axes) == 1 else 0.39 / (axes[-1].get_position().height * fig.get_figheight())
-    handles, labels = axes[0].get_legend_handles_labels()  # the top panel's conditions, below the last panel
-    longest = max(len(label) for label in labels)
-    ncol = 3 if not conds.by or longest <= 18 else 2 if longest <= 30 else 1
-    one = "one seed per condition" if conds.by else "one seed per agent"
-    axes[-1].legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -drop), ncol=ncol, frameon=False,
-                    handlelength=1.5, columnspacing=1.0, title=BAND if max(seeds.values()) > 1 else one)
+    handles, shown = axes[0].get_legend_handles_labels()  # the top panel's conditions, below the last panel
+    n = seeds[0]  # seeds per condition: once in the legend's title if the same for all, else in each label
+    same = len(set(n.values())) == 1
+    labels = [textwrap.fill(cond if same else f"{cond} (n={n[cond]})", 56, subsequent_indent="  ") for cond in shown]
+    if max(n.values()) == 1:
+        title = "one seed per condition" if conds.by else "one seed per agent"
+    else:
+        title = f"mean over {max(n.values())} seeds; band: 95% bootstrap CI" if same else BAND
+    for ncol in (3, 2, 1):  # as many columns as fit in the figure's width
+        legend = axes[-1].legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -drop), ncol=ncol,
+                                 frameon=False, handlelength=2.5, columnspacing=1.0, title=title)
+        box = legend.get_window_extent(fig.canvas.get_renderer())
+        if box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1:
+            break
     if len(axes) > 1:
         fig.align_ylabels(axes)
     return save(fig, out, f"{stem}_{wind}")
@@ -144,7 +153,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
         mean, lo, hi, _ = stats.mean_band(matrix)
         ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2,
                 marker="o" if len(grid) == 1 or curve.sparse else None, markersize=3,
-                label=textwrap.fill(f"{cond} (n={len(matrix)})", 56, subsequent_indent="  "))
+                label=cond)
         ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0)
         seeds[cond] = len(matrix)
     ax.set_ylabel(curve.ylabel)
@@ -166,10 +175,12 @@ def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame]:
     return wind, sub.drop_duplicates("condition").set_index("condition")
 
 
-def _title(cond: str) -> str:
-    """A condition's label for a narrow panel: the agent, then each --by value on a line of its own."""
-    agent, _, values = cond.partition(" (")
-    return "\n".join([agent, *values[:-1].split(", ")]) if values.endswith(")") else cond
+def _title(cond: str, conds, width: int) -> str:
+    """A condition's label for a narrow panel: its agent's label wrapped to ``width`` characters, then each --by
+    value on a line of its own."""
+    agent = conds.labels[conds.table.loc[cond, "agent"]]
+    values = cond[len(agent) + 2:-1].split(", ") if cond != agent else []  # cond = "agent (k=v, k=v)"
+    return "\n".join([textwrap.fill(agent, width), *values])
 
 
 def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path) -> list[Path]:
@@ -230,29 +241,42 @@ def _direction(v: np.ndarray) -> str:
 
 
 def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, conds, radius: float, out: Path) -> list[Path]:
+    """x, y, z against time, a column per condition; at most POSITION_COLUMNS columns side by side, further
+    conditions in blocks below (the same y scales throughout)."""
     shown = [c for c in conds.order if c in trajs]
-    fig, axes = plt.subplots(3, len(shown), figsize=(style.COLUMN_WIDTH, 3.4), sharex=True, sharey="row",
-                             squeeze=False)
-    title_size = 7 if len(shown) <= 3 else 6 if len(shown) == 4 else 5  # narrow columns
-    for j, cond in enumerate(shown):
-        t = trajs[cond]
-        time = np.arange(t["positions"].shape[1]) * float(t["dt"])
-        axes[0, j].set_xlim(0, time[-1])
-        for i in range(3):
-            ax = axes[i, j]
-            if np.isfinite(radius):
-                ax.axhspan(-radius, radius, color="0.85", linewidth=0, zorder=0)
-            ax.axhline(0, color="0.5", linewidth=0.5, zorder=0)
-            for pos in t["positions"]:
-                ax.plot(time, pos[:, i], color=conds.color(cond), linewidth=0.6, alpha=0.8)
-            if j == 0:
-                ax.set_ylabel(f"{'xyz'[i]} (m)")
-            ax.yaxis.set_major_locator(MaxNLocator(4))
-        axes[0, j].set_title(f"{_title(cond)}\nseed {picked.loc[cond, 'seed']}", fontsize=title_size)
-        axes[-1, j].set_xlabel("Time (s)")
-        axes[-1, j].xaxis.set_major_locator(MaxNLocator(3, steps=[1, 2, 5]))  # no label on the right edge
+    cols = min(len(shown), POSITION_COLUMNS)
+    blocks = [shown[i:i + cols] for i in range(0, len(shown), cols)]
+    fig = plt.figure(figsize=(style.COLUMN_WIDTH, 0.3 + 3.1 * len(blocks)), layout="constrained")
+    fig.get_layout_engine().set(w_pad=0.02, h_pad=0.02, hspace=0.02, wspace=0.02)
+    title_size = 7 if cols <= 3 else 6  # narrow columns
+    grids = []
+    for sub, block in zip(fig.subfigures(len(blocks), 1, squeeze=False)[:, 0], blocks):
+        axes = sub.subplots(3, cols, sharex=True, sharey="row", squeeze=False)
+        grids.append(axes)
+        for ax in axes[:, len(block):].flat:  # the last block's empty columns
+            ax.set_visible(False)
+        for j, cond in enumerate(block):
+            t = trajs[cond]
+            time = np.arange(t["positions"].shape[1]) * float(t["dt"])
+            axes[0, j].set_xlim(0, time[-1])
+            for i in range(3):
+                ax = axes[i, j]
+                if np.isfinite(radius):
+                    ax.axhspan(-radius, radius, color="0.85", linewidth=0, zorder=0)
+                ax.axhline(0, color="0.5", linewidth=0.5, zorder=0)
+                for pos in t["positions"]:
+                    ax.plot(time, pos[:, i], color=conds.color(cond), linewidth=0.6, alpha=0.8)
+                if j == 0:
+                    ax.set_ylabel(f"{'xyz'[i]} (m)")
+                ax.yaxis.set_major_locator(MaxNLocator(4))
+            title = _title(cond, conds, 24 if cols <= 2 else 16 if cols == 3 else 13)
+            axes[0, j].set_title(f"{title}\nseed {picked.loc[cond, 'seed']}", fontsize=title_size)
+            axes[-1, j].set_xlabel("Time (s)")
+            axes[-1, j].xaxis.set_major_locator(MaxNLocator(3, steps=[1, 2, 5]))  # no label on the right edge
+    for i in range(3):  # one y scale per axis across the blocks
+        lows, highs = zip(*(axes[i, 0].get_ylim() for axes in grids))
+        for axes in grids:
+            axes[i, 0].set_ylim(min(lows), max(highs))
     note = f"\ngrey band: success radius ±{radius:g} m" if np.isfinite(radius) else ""
-    fig.suptitle(f"Evaluation flights, agents trained with wind '{wind}', best-return seed{note}", fontsize=7,
-                 y=0.995)
-    fig.tight_layout(pad=0.3, h_pad=0.3, w_pad=0.3)
+    fig.suptitle(f"Evaluation flights, agents trained with wind '{wind}', best-return seed{note}", fontsize=7)
     return save(fig, out, "eval_position_axes")

@@ -1,7 +1,7 @@
 """Read one experiment of the MLflow store back into pandas (the only module that reads the store).
 
-* ``runs``: one row per FINISHED run: run_id, agent, wind, seed, sweep, the wind schedule and eval params,
-  the final ``eval/*`` metrics, the names of its metrics (``logged``) and one column per ``--by`` param.
+* ``runs``: one row per FINISHED run: run_id, agent, its legend label, wind, seed, sweep, the wind schedule and
+  eval params, the final ``eval/*`` metrics, the names of its metrics (``logged``) and one column per ``--by`` param.
 * ``histories``: long table (run_id, key, step, value) of the metric histories the report plots.
 * ``trajectories``: the ``eval_trajectories.npz`` artifact of one run.
 """
@@ -28,6 +28,8 @@ CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning
 OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate",  # only RECOM / eval during training
                  "train/std", "train/approx_kl", "train/clip_fraction"]  # PPO's update statistics
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
+# Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
+OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius"}
 
@@ -59,6 +61,12 @@ def check_keys(by: list[str], available: set[str]) -> None:
                      or [n for n in names if n.startswith("agent.")][:4] or names[:4])
             raise ReportError(f"unknown --by key {key!r}: no run logged that param "
                               f"(params are flattened config names, e.g. {', '.join(hints)})")
+
+
+def agent_label(agent: str, tags: dict[str, str], params: dict[str, str]) -> str:
+    """The run's legend label: its tag ``agent_label``, else its param ``agent.label`` (the agent's YAML
+    ``label:``), else (older stores) OLD_LABELS, else the agent's name."""
+    return tags.get("agent_label") or params.get("agent.label") or OLD_LABELS.get(agent, agent)
 
 
 def tracking_uri() -> str:
@@ -126,7 +134,9 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
         if run.info.status != "FINISHED":
             notes.append(f"left out run {name} ({run.info.status})")
             continue
-        row = {"run_id": run.info.run_id, "agent": tags.get("agent", "?"), "wind": tags.get("wind", "?"),
+        agent = tags.get("agent", "?")
+        row = {"run_id": run.info.run_id, "agent": agent, "label": agent_label(agent, tags, params),
+               "wind": tags.get("wind", "?"),
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})

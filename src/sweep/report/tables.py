@@ -30,15 +30,23 @@ def _interval(point: float, lo: float, hi: float, digits: int) -> str:
 
 def markdown(df: pd.DataFrame) -> str:
     cells = [[str(c) for c in df.columns]] + [[str(v) for v in row] for row in df.itertuples(index=False)]
-    lines = ["| " + " | ".join(r) + " |" for r in cells]
+    lines = ["| " + " | ".join(c.replace("|", r"\|") for c in r) + " |" for r in cells]
     lines.insert(1, "|" + "|".join("---" for _ in df.columns) + "|")
     return "\n".join(lines) + "\n"
 
 
+# LaTeX's special characters (an agent's label may have any, e.g. "Shrink & Perturb"), then the units.
+TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
+       "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+
+
+def _tex(value) -> str:
+    return "".join(TEX.get(ch, ch) for ch in str(value)).replace("±", r"$\pm$").replace("m²", r"m$^2$")
+
+
 def latex(df: pd.DataFrame, caption: str, label_: str) -> str:
-    body = df.map(lambda v: str(v).replace("%", r"\%").replace("_", r"\_").replace("±", r"$\pm$")
-                  .replace("m²", r"m$^2$"))
-    body.columns = [str(c).replace("%", r"\%").replace("m²", r"m$^2$") for c in df.columns]
+    body = df.map(_tex)
+    body.columns = [_tex(c) for c in df.columns]
     return body.to_latex(index=False, column_format="l" * 2 + "c" * (len(df.columns) - 2),
                          caption=caption, label=label_, position="htbp")
 

@@ -1,0 +1,75 @@
+"""``Learner``: the one contract between a PPO learner and everything that reads or writes its networks.
+
+``SB3PPO`` (the reference) and ``JaxPPO`` (its compiled equivalent) both implement it, and remedies,
+diagnostics and checkpoints use nothing else: no ``isinstance`` on the learner, no ``model.policy``, no
+private SB3 fields outside the two learner modules. tests/test_learner.py holds both to it.
+
+Parameters are NumPy arrays named as SB3's ``ActorCriticPolicy.state_dict`` in torch's (out, in) layout;
+``networks`` says which arrays form which layer (``sweep.agents.networks``).
+
+Random state. A remedy draws only from ``learner.rng`` (``networks.remedy_rng(seed)``), never from a global
+RNG; ``learner_state`` holds that generator and every other one the learner owns (JAX: its action noise),
+and the checkpoint stores it together with torch's, NumPy's and Python's global RNGs. Both learners draw
+PPO's minibatch order from NumPy's *global* RNG (``np.random.permutation`` per epoch), as SB3's
+``RolloutBuffer.get`` does: that keeps the two learners update-for-update equal for the same seed, and is
+why a remedy must never touch ``np.random``.
+
+Optimizer state. ``reset_optimizer(masks)`` zeroes Adam's first and second moments where a mask is True
+(the step count, hence the bias correction, is kept): what ReDo and CBP do to the weights they re-initialise.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+
+from sweep.agents.networks import Network
+
+
+class Hidden(NamedTuple):
+    """One hidden layer's activations on a batch (B x units): the input of the nonlinearity and its output."""
+
+    pre: np.ndarray
+    post: np.ndarray
+
+
+@runtime_checkable
+class Learner(Protocol):
+    num_timesteps: int
+    rng: np.random.Generator               # the remedies' generator (checkpointed)
+    networks: tuple[Network, Network]      # (policy, value)
+    minibatches_per_update: int            # SGD steps of one full update (n_epochs x rollout / batch_size)
+
+    def parameter_arrays(self) -> dict[str, np.ndarray]:
+        """Copies of every parameter, by name."""
+
+    def write_parameters(self, arrays: Mapping[str, np.ndarray]) -> None:
+        """Overwrite the named parameters (others unchanged); the next action and update use them."""
+
+    def initial_parameters(self) -> dict[str, np.ndarray]:
+        """theta_0: the parameters as the learner was built (copies)."""
+
+    def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
+        """Per network (``policy``, ``value``), each hidden layer's (pre, post) activations on ``obs``."""
+
+    def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
+        """Zero Adam's m and v of the parameter entries where ``masks[name]`` is True; step count kept."""
+
+    def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Adam's (m, v) per parameter (zeros before the first step)."""
+
+    def use_l2(self, coef: float, mode: str = "decoupled", params=("policy", "value"), biases: bool = True,
+               anchor: str = "zero") -> None:
+        """Weight decay toward 0 (``anchor=zero``, L2) or toward theta_0 (``anchor=init``, L2-Init)."""
+
+    def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
+        """Norm of the PPO loss gradient at the current parameters, before clipping."""
+
+    def learner_state(self) -> dict[str, Any]:
+        """Parameters, optimizer state and the learner's own generators, for a checkpoint."""
+
+    def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
+        """Restore ``learner_state``; without ``optimizer`` only the parameters."""
+
+
+__all__ = ["Hidden", "Learner"]

@@ -1,0 +1,124 @@
+"""The actor-critic networks both learners build, described once.
+
+SB3's ``ActorCriticPolicy`` with ``MlpPolicy``: a policy MLP and a value MLP (``net_arch`` hidden units each,
+tanh or ReLU), a linear action head, a linear value head and a state-independent ``log_std``. Parameters
+carry SB3's ``state_dict`` names in torch's (out, in) layout. ``agent.policy.layer_norm`` puts a LayerNorm
+between each hidden Linear and its activation (Lyle et al. 2024, "Normalization and effective learning
+rates in reinforcement learning"): Linear -> LayerNorm -> activation.
+
+Initialisation (SB3's ``ortho_init``): orthogonal weights with gain sqrt(2) in the hidden layers, 0.01 in
+the action head, 1 in the value head; zero biases; LayerNorm scale 1 and shift 0; log_std 0.
+``fresh_parameters`` draws from exactly that distribution with a NumPy generator, which is what a remedy
+that re-initialises weights (ReDo, CBP, shrink-and-perturb) needs on either learner.
+
+A hidden unit i of layer k owns row i of ``hidden[k].weight``, entry i of ``hidden[k].bias`` (and of the
+LayerNorm's scale and shift): its *incoming* weights. Column i of the next layer's weight (the next hidden
+layer, or the head) holds its *outgoing* weights.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import MlpExtractor
+
+HIDDEN_GAIN = math.sqrt(2.0)
+LAYER_NORM_EPS = 1e-5  # torch.nn.LayerNorm's default
+
+
+@dataclass(frozen=True)
+class Network:
+    """One MLP of the actor-critic: its hidden Linear layers (with their LayerNorms) and its head."""
+
+    name: str                        # policy | value
+    hidden: tuple[str, ...]          # SB3 names of the hidden Linear layers
+    norms: tuple[str | None, ...]    # the LayerNorm after each hidden layer (None: no LayerNorm)
+    head: str                        # action_net | value_net
+    head_gain: float
+
+    def outgoing(self, k: int) -> str:
+        """The layer that reads hidden layer k's units."""
+        return self.hidden[k + 1] if k + 1 < len(self.hidden) else self.head
+
+    @property
+    def linears(self) -> tuple[str, ...]:
+        return (*self.hidden, self.head)
+
+
+def actor_critic(n_hidden: int, layer_norm: bool = False) -> tuple[Network, Network]:
+    """(policy, value) network descriptions: SB3's Sequential indices, Linear[, LayerNorm], activation."""
+    step = 3 if layer_norm else 2
+
+    def net(name: str, prefix: str, head: str, gain: float) -> Network:
+        hidden = tuple(f"{prefix}.{step * i}" for i in range(n_hidden))
+        norms = tuple(f"{prefix}.{step * i + 1}" if layer_norm else None for i in range(n_hidden))
+        return Network(name, hidden, norms, head, gain)
+
+    return (net("policy", "mlp_extractor.policy_net", "action_net", 0.01),
+            net("value", "mlp_extractor.value_net", "value_net", 1.0))
+
+
+def orthogonal(shape: tuple[int, int], gain: float, rng: np.random.Generator) -> np.ndarray:
+    """A draw of ``torch.nn.init.orthogonal_`` (Saxe et al. 2014) from a NumPy generator, float32."""
+    rows, cols = shape
+    flat = rng.standard_normal((rows, cols))
+    if rows < cols:
+        flat = flat.T
+    q, r = np.linalg.qr(flat)
+    q *= np.sign(np.diag(r))
+    if rows < cols:
+        q = q.T
+    return (gain * q).astype(np.float32)
+
+
+def fresh_parameters(shapes: dict[str, tuple[int, ...]], networks: tuple[Network, ...],
+                     rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Every parameter drawn anew from its initial distribution (see the module docstring)."""
+    out = {name: np.zeros(shape, np.float32) for name, shape in shapes.items()}  # biases, LN shifts, log_std
+    for net in networks:
+        for k, layer in enumerate(net.hidden):
+            out[f"{layer}.weight"] = orthogonal(shapes[f"{layer}.weight"], HIDDEN_GAIN, rng)
+            if net.norms[k]:
+                out[f"{net.norms[k]}.weight"] = np.ones(shapes[f"{net.norms[k]}.weight"], np.float32)
+        out[f"{net.head}.weight"] = orthogonal(shapes[f"{net.head}.weight"], net.head_gain, rng)
+    return out
+
+
+def remedy_rng(seed: int) -> np.random.Generator:
+    """The generator a learner hands its remedies: a stream of its own, apart from every global RNG."""
+    return np.random.default_rng([int(seed), 0x5EED])
+
+
+# ---- torch: SB3's policy with LayerNorm in the hidden layers -----------------------------------------------
+def _with_layer_norm(mlp: torch.nn.Sequential) -> torch.nn.Sequential:
+    modules = []
+    for module in mlp:
+        modules.append(module)
+        if isinstance(module, torch.nn.Linear):
+            modules.append(torch.nn.LayerNorm(module.out_features, eps=LAYER_NORM_EPS))
+    return torch.nn.Sequential(*modules)
+
+
+class LayerNormMlpExtractor(MlpExtractor):
+    """SB3's ``MlpExtractor`` with Linear -> LayerNorm -> activation in both networks."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.policy_net = _with_layer_norm(self.policy_net)
+        self.value_net = _with_layer_norm(self.value_net)
+
+
+class LayerNormActorCriticPolicy(ActorCriticPolicy):
+    """``MlpPolicy`` with LayerNorm (``agent.policy.layer_norm=true``). SB3's orthogonal init touches only the
+    Linear layers and LayerNorm draws no random numbers, so the same seed gives the same Linear weights."""
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = LayerNormMlpExtractor(self.features_dim, net_arch=self.net_arch,
+                                                   activation_fn=self.activation_fn, device=self.device)
+
+
+def policy_class(layer_norm: bool):
+    return LayerNormActorCriticPolicy if layer_norm else "MlpPolicy"

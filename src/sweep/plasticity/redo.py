@@ -1,0 +1,44 @@
+"""ReDo, recycling dormant neurons (Sokar et al. 2023, "The dormant neuron phenomenon in deep RL").
+
+Every K updates, on the most recent observations, each hidden unit's score
+
+    s_i = E_x |h_i(x)| / ( 1/H * sum_k E_x |h_k(x)| )              (Sokar et al., Def. 3.1)
+
+is computed per layer; every unit with s_i <= tau gets fresh incoming weights from the layer's own
+init and a zero bias, its outgoing weights are set to 0, and Adam's m and v of those weights are zeroed
+(the ReDo authors' code does; Plasticine's does not, and we follow the authors). Output layers are never
+reset. Logs ``remedy/redo/reset_units`` (both networks) and per layer ``remedy/redo/<network>_layer<k>``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sweep.agents.learner import Learner
+from sweep.plasticity.dormant import dormant_mask
+from sweep.plasticity.remedy import Remedy, UnitSurgery
+
+NETWORKS = ("policy", "value")
+
+
+class ReDo(Remedy):
+    name = "redo"
+    reads_activations = True
+
+    def __init__(self, every_updates: int = 100, tau: float = 0.1, networks=NETWORKS, batch_size: int = 1024,
+                 reset_adam: bool = True) -> None:
+        super().__init__(every_updates, batch_size)
+        if not set(networks) <= set(NETWORKS) or not networks:
+            raise ValueError(f"networks={list(networks)!r}; allowed: a non-empty subset of {list(NETWORKS)}")
+        self.tau, self.networks, self.reset_adam = float(tau), tuple(networks), bool(reset_adam)
+
+    def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
+        activations = learner.hidden_activations(observations)
+        surgery = UnitSurgery(learner)
+        stats = {}
+        for net in learner.networks:
+            if net.name not in self.networks:
+                continue
+            for k, layer in enumerate(activations[net.name]):
+                stats[f"{net.name}_layer{k}"] = surgery.reinitialize(net, k, dormant_mask(layer.post, self.tau))
+        surgery.commit(self.reset_adam)
+        return {"reset_units": sum(stats.values()), **stats}

@@ -1,0 +1,119 @@
+"""What every remedy that writes the networks shares: when it acts, and how it re-initialises units.
+
+``Remedy`` is an SB3 callback that acts after every ``every_updates``-th PPO update, at the start of the
+next rollout (SB3's ``_on_rollout_start``: after ``train()``, before the next rollout fills), so both
+learners see the same sequence of updates, rollouts and remedy events. Remedies that read activations
+get the ``batch_size`` most recent observations of the rollout the update learned from. Each logs what it
+did under ``remedy/<name>/<what>``. It talks to the learner only through ``sweep.agents.learner.Learner``.
+
+``UnitSurgery`` re-initialises hidden units (ReDo, CBP): for unit i of hidden layer k, fresh incoming
+weights (row i of the layer's weight, drawn from the layer's own init), a zero bias (LayerNorm scale 1,
+shift 0), and zero outgoing weights (column i of the next layer), so the network's output is unchanged at
+the moment of the reset; optionally Adam's moments of exactly those entries are zeroed.
+"""
+from __future__ import annotations
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sweep.agents.learner import Learner
+from sweep.agents.networks import Network, fresh_parameters
+from sweep.plasticity.batch import recent_rollout
+
+
+class UnitSurgery:
+    """Collects unit re-initialisations on a copy of the parameters; ``commit`` writes them in one go."""
+
+    def __init__(self, learner: Learner) -> None:
+        self.learner = learner
+        self.params = learner.parameter_arrays()
+        self.masks: dict[str, np.ndarray] = {}
+        self._fresh: dict[str, np.ndarray] | None = None
+
+    def fresh(self) -> dict[str, np.ndarray]:
+        if self._fresh is None:  # one draw of the whole init per event, from the learner's generator
+            shapes = {k: v.shape for k, v in self.params.items()}
+            self._fresh = fresh_parameters(shapes, self.learner.networks, self.learner.rng)
+        return self._fresh
+
+    def _mask(self, name: str) -> np.ndarray:
+        return self.masks.setdefault(name, np.zeros(self.params[name].shape, bool))
+
+    def reinitialize(self, net: Network, k: int, units: np.ndarray) -> int:
+        """Re-initialise the ``units`` (bool per unit) of ``net``'s hidden layer k; returns how many."""
+        units = np.asarray(units, bool)
+        if not units.any():
+            return 0
+        fresh = self.fresh()
+        layer, out = net.hidden[k], net.outgoing(k)
+        incoming = [f"{layer}.weight", f"{layer}.bias"] + ([f"{net.norms[k]}.weight", f"{net.norms[k]}.bias"]
+                                                          if net.norms[k] else [])
+        for name in incoming:
+            self.params[name][units] = fresh[name][units]
+            self._mask(name)[units] = True
+        self.params[f"{out}.weight"][:, units] = 0.0
+        self._mask(f"{out}.weight")[:, units] = True
+        return int(units.sum())
+
+    def commit(self, reset_adam: bool = True) -> None:
+        if not self.masks:
+            return
+        self.learner.write_parameters({name: self.params[name] for name in self.masks})
+        if reset_adam:
+            self.learner.reset_optimizer(self.masks)
+
+
+class Remedy(BaseCallback):
+    """Acts on the learner after every ``every_updates``-th update (see the module docstring)."""
+
+    name = "remedy"
+    reads_activations = False
+
+    def __init__(self, every_updates: int = 1, batch_size: int = 1024) -> None:
+        super().__init__()
+        if int(every_updates) < 1:
+            raise ValueError(f"every_updates={every_updates!r}: must be an integer >= 1")
+        self.every, self.batch_size = int(every_updates), int(batch_size)
+        self.rollouts = 0   # rollouts ended so far = updates that follow them
+        self.updates = 0    # updates this remedy has already handled
+        self.observations: np.ndarray | None = None
+
+    # -- what a remedy implements --
+    def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
+        """Change the learner after an update; returns what to log under remedy/<name>/."""
+        raise NotImplementedError
+
+    def after_update(self, learner: Learner) -> None:
+        """Called after every update, acting or not (e.g. CBP ages its units)."""
+
+    def extra_state(self) -> dict:
+        return {}
+
+    def load_extra_state(self, state: dict) -> None:
+        pass
+
+    # -- checkpoints --
+    def state_dict(self) -> dict:
+        return {"rollouts": self.rollouts, "updates": self.updates, **self.extra_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.rollouts, self.updates = state["rollouts"], state["updates"]
+        self.load_extra_state(state)
+
+    # -- SB3 hooks --
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        self.rollouts += 1
+        if self.reads_activations:
+            self.observations = recent_rollout(self.model.rollout_buffer, self.batch_size)[0]
+
+    def _on_rollout_start(self) -> None:
+        if self.rollouts == self.updates:  # no update since the last call (first rollout, or just resumed)
+            return
+        self.updates = self.rollouts
+        self.after_update(self.model)
+        if self.updates % self.every == 0:
+            for key, value in self.act(self.model, self.observations).items():
+                self.logger.record(f"remedy/{self.name}/{key}", float(value))
