@@ -19,7 +19,11 @@ One table, all rows measured in this run:
 * joblib (loky) scaling: 2 concurrent runs of (c) vs 1 (``JOBLIB_ROLLOUTS`` timed rollouts each), aggregate
   timesteps/s over the span from the (barrier-synchronised) start to the last end (best of ``REPEATS``), and,
   for context, the same ratio for a pure-Python busy loop (what the machine gives two processes now);
-* peak memory (max RSS of the worker process, resource.getrusage) per run.
+* peak memory (max RSS of the worker process, resource.getrusage) per run;
+* the cost of each remedy on the JAX learner, paper layout (1 env x 2048): ``REMEDY_ROLLOUTS`` timed rollouts of
+  each agent in a fresh worker; the remedy's own time (its callback hooks, timed inside the run) as a share of
+  the run, and the run's wall time against PPO's (best of ``REPEATS``). ``python benchmarks/bench.py remedies``
+  runs only these rows.
 """
 from __future__ import annotations
 
@@ -40,6 +44,9 @@ REPEATS = 2  # interleaved passes over the PPO configs; the best of each is repo
 JOBLIB_ROLLOUTS = 6  # timed rollouts per run in the joblib rows (longer: concurrent runs start unevenly)
 JAX_ROLLOUTS = 40  # timed rollouts of the JAX learner (~25x faster: more rollouts for the same timing accuracy)
 E2E_STEPS = (102_400, 512_000)  # end-to-end JAX runs: the steady rate comes from their difference
+REMEDY_ROLLOUTS = 200  # > ReDo's 100-update period, so one ReDo event falls in the timed part
+REMEDY_AGENTS = ("ppo", "l2", "recom_l2", "redo", "shrink_perturb", "cbp_l2", "l2_init", "layer_norm", "l2_lr_decay",
+                 "ppo_target_kl")
 PAPER_STUDY = (30, 20_000_000)  # runs x timesteps of `python -m sweep -m experiment=paper`
 DT = 0.01
 
@@ -208,6 +215,65 @@ def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int 
             "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
+def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
+    """One agent on the JAX learner, paper layout; the time spent in its remedies' callback hooks."""
+    import torch
+
+    torch.set_num_threads(1)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    from hydra import compose, initialize_config_dir
+    from stable_baselines3.common.callbacks import CallbackList
+
+    from sweep.agents import build_learner, build_remedies
+    from sweep.envs.hover import HoverVecEnv
+    from sweep.envs.wind import WindSchedule
+    from sweep.tracking import PROJECT_ROOT
+
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[f"agent={agent}", "agent.learner=jax"])
+    env = HoverVecEnv(n_envs=1, wind=WindSchedule.constant(3.0), seed=0)
+    model = build_learner(cfg.agent, env, 0)
+    remedies = build_remedies(cfg.agent)
+    spent = [0.0]
+    for cb in remedies:
+        for hook in ("_on_rollout_start", "_on_rollout_end", "_on_step"):
+            def timed(f=getattr(cb, hook)):
+                t = time.perf_counter()
+                out = f()
+                spent[0] += time.perf_counter() - t
+                return out
+            setattr(cb, hook, timed)
+    callback = CallbackList(remedies)
+    model.learn(ROLLOUT, callback=callback)  # warm-up (compilation)
+    spent[0] = 0.0
+    t0 = time.perf_counter()
+    model.learn(rollouts * ROLLOUT, callback=callback, reset_num_timesteps=False)
+    wall = time.perf_counter() - t0
+    return {"agent": agent, "wall": wall, "fps": rollouts * ROLLOUT / wall, "remedy_s": spent[0],
+            "share": spent[0] / wall}
+
+
+def remedy_rows() -> list[tuple[str, str, str, str, str]]:
+    runs: dict[str, list[dict]] = {a: [] for a in REMEDY_AGENTS}
+    for _ in range(REPEATS):
+        for agent in REMEDY_AGENTS:
+            runs[agent].append(_fresh_pool_map(remedy_run, [(agent,)])[0])
+            print("remedy", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in runs[agent][-1].items()},
+                  flush=True)
+    best = {a: min(v, key=lambda r: r["wall"]) for a, v in runs.items()}
+    ppo = best["ppo"]["wall"]
+    rows = []
+    for agent in REMEDY_AGENTS[1:]:
+        share = min(r["share"] for r in runs[agent])
+        ratio = best[agent]["wall"] / ppo
+        rows.append((f"remedy cost, JAX 1 x 2048, agent={agent}: own share of the run; run time vs PPO",
+                     f"{best['ppo']['fps']:,.0f} ts/s (ppo)", f"{100 * share:.2f}%; {best[agent]['fps']:,.0f} ts/s",
+                     f"{ratio:.3f}x", f"own share <= 5%: {'met' if share <= 0.05 else 'MISSED'}"))
+    return rows
+
+
 def _fresh_pool_map(fn, argss):
     """Run fn(*args) for each args in fresh loky workers, all concurrently; return results in order."""
     from joblib import Parallel, delayed
@@ -231,6 +297,9 @@ def main() -> int:
     def ok(flag: bool) -> str:
         return "met" if flag else "MISSED"
 
+    if sys.argv[1:] == ["remedies"]:
+        rows += remedy_rows()
+        return _print_table(rows, t_start, load0)
     try:
         import numba
 
@@ -342,7 +411,11 @@ def main() -> int:
     worst = max(rss.values())
     rows.append(("peak RSS per run, MB", "", ", ".join(f"{k} {v:,.0f}" for k, v in rss.items()), "",
                  f"<= 1 GB: {ok(worst <= TARGETS['rss_mb'])}"))
+    rows += remedy_rows()
+    return _print_table(rows, t_start, load0)
 
+
+def _print_table(rows, t_start: float, load0) -> int:
     load1 = os.getloadavg()
     head = ("measurement", "RotorPy / reference", "ours", "ratio", "target")
     widths = [max(len(r[i]) for r in rows + [head]) for i in range(5)]
