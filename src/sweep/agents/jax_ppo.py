@@ -237,9 +237,14 @@ class JaxPPO(OnPolicyAlgorithm):
                         "anchor": anchor}
         self._build_optimizer()
 
-    def _export_weights(self) -> None:
-        """numba's copy of the networks: per layer (in, out) float32 weights, biases, and log_std."""
-        host = {k: np.array(v, dtype=np.float32) for k, v in self.params.items()}  # writable copies
+    def _export_weights(self, written: Mapping[str, np.ndarray] | None = None) -> None:
+        """numba's copy of the networks: per layer (in, out) float32 weights, biases, and log_std. ``written``:
+        host values of the parameters just written (the others are taken from the previous export)."""
+        if written is None:
+            host = {k: np.array(v, dtype=np.float32) for k, v in self.params.items()}  # writable copies
+        else:
+            host = {**self._host, **written}
+        self._host = host
 
         def layers(net: Network):
             norm = [(host[f"{n}.weight"], host[f"{n}.bias"]) if n else  # unused placeholders without LayerNorm
@@ -346,11 +351,13 @@ class JaxPPO(OnPolicyAlgorithm):
 
     def write_parameters(self, arrays: Mapping[str, np.ndarray]) -> None:
         """New values of the named parameters; the compiled rollout's copy follows (Adam's moments are left)."""
+        written = {}
         for name, value in arrays.items():
             if np.shape(value) != self.params[name].shape:
                 raise ValueError(f"{name}: shape {np.shape(value)} != {self.params[name].shape}")
-            self.params[name] = jnp.asarray(np.asarray(value, np.float32))
-        self._export_weights()
+            written[name] = np.array(value, dtype=np.float32)
+            self.params[name] = jnp.asarray(written[name])
+        self._export_weights(written)
 
     def initial_parameters(self) -> dict[str, np.ndarray]:
         return {k: v.copy() for k, v in self._initial.items()}

@@ -29,7 +29,7 @@ class ContinualBackprop(Remedy):
     reads_activations = True
 
     def __init__(self, replacement_rate: float = 1e-4, maturity: int = 10_000, decay: float = 0.99,
-                 networks=NETWORKS, batch_size: int = 1024, reset_adam: bool = False) -> None:
+                 networks=NETWORKS, batch_size: int = 256, reset_adam: bool = False) -> None:
         super().__init__(every_updates=1, batch_size=batch_size)
         if not set(networks) <= set(NETWORKS) or not networks:
             raise ValueError(f"networks={list(networks)!r}; allowed: a non-empty subset of {list(NETWORKS)}")
@@ -48,9 +48,9 @@ class ContinualBackprop(Remedy):
 
     def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
         activations = learner.hidden_activations(observations)
-        params = learner.parameter_arrays()
         steps = learner.minibatches_per_update
         surgery = UnitSurgery(learner)
+        params = surgery.params
         replaced = eligible_total = 0
         for net in learner.networks:
             if net.name not in self.networks:
@@ -58,7 +58,7 @@ class ContinualBackprop(Remedy):
             for k, layer in enumerate(activations[net.name]):
                 key = f"{net.name}/{k}"
                 width = layer.post.shape[1]
-                outgoing = np.abs(params[f"{net.outgoing(k)}.weight"]).sum(axis=0)
+                outgoing = np.abs(params[f"{net.outgoing(k)}.weight"]).sum(axis=0)  # before this event's writes
                 now = np.abs(layer.post).mean(axis=0) * outgoing
                 u = self.utility.setdefault(key, np.zeros(width))
                 a = self.age.setdefault(key, np.zeros(width, np.int64))

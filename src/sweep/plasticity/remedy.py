@@ -17,7 +17,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.agents.learner import Learner
-from sweep.agents.networks import Network, fresh_parameters
+from sweep.agents.networks import HIDDEN_GAIN, Network, orthogonal
 from sweep.plasticity.batch import recent_rollout
 
 
@@ -28,13 +28,6 @@ class UnitSurgery:
         self.learner = learner
         self.params = learner.parameter_arrays()
         self.masks: dict[str, np.ndarray] = {}
-        self._fresh: dict[str, np.ndarray] | None = None
-
-    def fresh(self) -> dict[str, np.ndarray]:
-        if self._fresh is None:  # one draw of the whole init per event, from the learner's generator
-            shapes = {k: v.shape for k, v in self.params.items()}
-            self._fresh = fresh_parameters(shapes, self.learner.networks, self.learner.rng)
-        return self._fresh
 
     def _mask(self, name: str) -> np.ndarray:
         return self.masks.setdefault(name, np.zeros(self.params[name].shape, bool))
@@ -44,16 +37,28 @@ class UnitSurgery:
         units = np.asarray(units, bool)
         if not units.any():
             return 0
-        fresh = self.fresh()
         layer, out = net.hidden[k], net.outgoing(k)
-        incoming = [f"{layer}.weight", f"{layer}.bias"] + ([f"{net.norms[k]}.weight", f"{net.norms[k]}.bias"]
-                                                          if net.norms[k] else [])
+        weight = f"{layer}.weight"
+        self.params[weight][units] = self.fresh_rows(self.params[weight].shape, int(units.sum()))
+        self.params[f"{layer}.bias"][units] = 0.0
+        if net.norms[k]:
+            self.params[f"{net.norms[k]}.weight"][units] = 1.0
+            self.params[f"{net.norms[k]}.bias"][units] = 0.0
+        incoming = [weight, f"{layer}.bias"] + ([f"{net.norms[k]}.weight", f"{net.norms[k]}.bias"] if net.norms[k] else [])
         for name in incoming:
-            self.params[name][units] = fresh[name][units]
             self._mask(name)[units] = True
         self.params[f"{out}.weight"][:, units] = 0.0
         self._mask(f"{out}.weight")[:, units] = True
         return int(units.sum())
+
+    def fresh_rows(self, shape: tuple[int, int], k: int) -> np.ndarray:
+        """k rows of a fresh draw of a hidden layer's init (orthogonal, gain sqrt 2), from the learner's generator.
+        For a wide or square layer, k rows of a Haar-orthogonal matrix are a uniform k-frame, which is what an
+        orthogonal (k, in) draw is; a tall layer is drawn whole and k of its rows kept."""
+        rows, cols = shape
+        if rows <= cols:
+            return orthogonal((k, cols), HIDDEN_GAIN, self.learner.rng)
+        return orthogonal(shape, HIDDEN_GAIN, self.learner.rng)[:k]
 
     def commit(self, reset_adam: bool = True) -> None:
         if not self.masks:
