@@ -16,11 +16,12 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-run: $(STAMP)  ## the main job: a few-minute demo sweep of every agent into ./mlflow.db
+run: $(STAMP)  ## the main job: a few-minute demo (a drone learning to hover) of the paper's agents into ./mlflow.db
 	$(PY) -m sweep -m experiment=demo
+	$(PY) -m sweep.report --experiment recom-demo
 	@echo "Results: MLflow store $(CURDIR)/mlflow.db (unless MLFLOW_TRACKING_URI is set); job outputs under multirun/"
-	@echo "Open them:  source $(VENV)/bin/activate && mlflow ui      (or: make ui)   then http://127.0.0.1:5000"
-	@echo "Figures:    make paper-figures"
+	@echo "Open them:  source $(VENV)/bin/activate && mlflow ui      (or: make ui)"
+	@echo "Runs table: $$($(PY) -m sweep.links recom-demo)"
 
 demo: run
 
@@ -37,6 +38,7 @@ paper-figures: $(STAMP)
 	$(PY) -m sweep.report
 
 ui: $(STAMP)  ## MLflow UI on 127.0.0.1:5000 with one worker (~0.5 GB instead of ~2.7 GB)
+	@$(PY) -m sweep.links
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false MLFLOW_DISABLE_TELEMETRY=true $(VENV)/bin/mlflow ui --workers 1
 
 clean:

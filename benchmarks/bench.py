@@ -21,8 +21,9 @@ One table, all rows measured in this run:
   for context, the same ratio for a pure-Python busy loop (what the machine gives two processes now);
 * peak memory (max RSS of the worker process, resource.getrusage) per run;
 * the cost of each remedy on the JAX learner, paper layout (1 env x 2048): ``REMEDY_ROLLOUTS`` timed rollouts of
-  each agent in a fresh worker; the remedy's own time (its callback hooks, timed inside the run) as a share of
-  the run, and the run's wall time against PPO's (best of ``REPEATS``). ``python benchmarks/bench.py remedies``
+  each agent in a fresh worker, with a real run's callbacks (diagnostics every rollout, env statistics; no
+  MLflow); the remedy's own time (its callback hooks, timed inside the run) as a share of the run, and the
+  run's wall time against PPO's (best of ``REPEATS``). ``python benchmarks/bench.py remedies``
   runs only these rows.
 """
 from __future__ import annotations
@@ -245,7 +246,11 @@ def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
                 spent[0] += time.perf_counter() - t
                 return out
             setattr(cb, hook, timed)
-    callback = CallbackList(remedies)
+    from sweep.monitor import EnvMonitor
+    from sweep.plasticity.diagnostics import PlasticityDiagnostics
+
+    # the callbacks of a real run (run.py) but the MLflow writer: remedies, diagnostics, env statistics
+    callback = CallbackList([*remedies, PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()])
     model.learn(ROLLOUT, callback=callback)  # warm-up (compilation)
     spent[0] = 0.0
     t0 = time.perf_counter()

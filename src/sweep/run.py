@@ -6,6 +6,8 @@ Hydra job (it records the job's status and turns errors into one line and an exi
 from __future__ import annotations
 
 import logging
+import os
+import socket
 import sys
 import tempfile
 from pathlib import Path
@@ -101,7 +103,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
 
     run_id = previous.get("run_id") if previous else None
     with TrackedRun(cfg, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
-        record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri)
+        record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
         log.info("[%s] MLflow run %s in %s%s", tags["run_name"], tracked.run_id, tracked.uri,
                  f" (resumed at {state['num_timesteps']:,} timesteps)" if state else "")

@@ -35,7 +35,7 @@ def ui_command(uri: str) -> str:
     return f"mlflow ui --backend-store-uri {uri}"
 
 
-def report_sweep(sweep_dir: Path, uri: str) -> None:
+def report_sweep(sweep_dir: Path, uri: str, runs_url: str | None = None) -> None:
     """Print one line per failed job and where results are; exit 1 if any job did not finish."""
     jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir() and (p / ".hydra").exists()),
                   key=lambda p: (len(p.name), p.name)) if sweep_dir.exists() else []
@@ -43,6 +43,8 @@ def report_sweep(sweep_dir: Path, uri: str) -> None:
     bad = [(job, s) for job, s in statuses if s["status"] != "FINISHED"]
     print(f"sweep: {len(statuses) - len(bad)}/{len(statuses)} jobs finished; outputs in {sweep_dir}")
     print(f"sweep: MLflow store {uri}; open it with: {ui_command(uri)}")
+    if runs_url:
+        print(f"sweep: then the runs table: {runs_url}")
     for job, s in bad:
         print(f"sweep: job {job.name} {s['status']} ({' '.join(s.get('overrides', []))}): {s.get('reason', '')}",
               file=sys.stderr)

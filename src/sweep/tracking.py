@@ -46,16 +46,40 @@ def tracking_uri(uri: str | None = None) -> str:
     return uri
 
 
+# MLflow 3 opens an experiment of unknown kind on its GenAI overview ("Traces"); this tag marks it as model
+# training. The UI still lands on that overview unless the link asks for the runs table (``experiment_url``).
+EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
+UI_ADDRESS = "http://127.0.0.1:5000"
+
+
 def ensure_store(uri: str, experiment: str) -> str:
-    """Create the store's schema and the experiment if missing; return the experiment id."""
+    """Create the store's schema and the experiment if missing (tagged as model training); return its id."""
     client = MlflowClient(tracking_uri=uri)
     exp = client.get_experiment_by_name(experiment)
-    if exp is not None:
-        return exp.experiment_id
-    try:
-        return client.create_experiment(experiment)
-    except mlflow.exceptions.MlflowException:  # created concurrently by another process
-        return client.get_experiment_by_name(experiment).experiment_id
+    if exp is None:
+        try:
+            exp_id = client.create_experiment(experiment, tags=EXPERIMENT_KIND)
+        except mlflow.exceptions.MlflowException:  # created concurrently by another process
+            exp_id = client.get_experiment_by_name(experiment).experiment_id
+    else:
+        exp_id = exp.experiment_id
+        if exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND["mlflow.experimentKind"]:
+            client.set_experiment_tag(exp_id, *next(iter(EXPERIMENT_KIND.items())))
+    return exp_id
+
+
+def experiment_url(uri: str, experiment: str, address: str = UI_ADDRESS) -> str | None:
+    """The MLflow UI's link to an experiment's Runs table (not its GenAI overview); None if it does not exist."""
+    exp = MlflowClient(tracking_uri=uri).get_experiment_by_name(experiment)
+    if exp is None:
+        return None
+    return f"{address}/#/experiments/{exp.experiment_id}?workflowType=machine_learning"
+
+
+def experiment_names(uri: str) -> list[str]:
+    """The store's experiments, newest first (MLflow's ``Default`` left out)."""
+    exps = MlflowClient(tracking_uri=uri).search_experiments(order_by=["creation_time DESC"])
+    return [e.name for e in exps if e.name != "Default"]
 
 
 def flatten(cfg: Any, prefix: str = "") -> dict[str, str]:
@@ -178,8 +202,28 @@ class SweepCallback(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._prepare(config)
+        try:
+            from sweep.plan import announce
+
+            params = config.hydra.sweeper.get("params")
+            params = OmegaConf.to_container(params, resolve=False) if params else {}
+            print(announce(config, list(config.hydra.overrides.task), {k: str(v) for k, v in params.items()},
+                           config.hydra.launcher.get("n_jobs", -1)), flush=True)
+        except Exception as err:  # noqa: BLE001 - an estimate must never stop a sweep
+            log.debug("no time estimate: %s", err)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         from sweep.status import report_sweep
 
-        report_sweep(Path(config.hydra.sweep.dir), tracking_uri(config.tracking.uri))
+        uri = tracking_uri(config.tracking.uri)
+        report_sweep(Path(config.hydra.sweep.dir), uri, experiment_url(uri, config.tracking.experiment))
+
+    def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
+        uri = tracking_uri(config.tracking.uri)
+        print(f"sweep: runs in the MLflow UI ({_ui_hint(uri)}): {experiment_url(uri, config.tracking.experiment)}")
+
+
+def _ui_hint(uri: str) -> str:
+    from sweep.status import ui_command
+
+    return ui_command(uri)

@@ -378,7 +378,7 @@ class JaxPPO(OnPolicyAlgorithm):
 
     def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
         """Per network, each hidden layer's (input of the activation, its output) on ``obs``."""
-        pi_hidden, vf_hidden = self._activations(self.params, np.asarray(obs, np.float32))
+        pi_hidden, vf_hidden = jax.device_get(self._activations(self.params, np.asarray(obs, np.float32)))
         return {"policy": [Hidden(np.asarray(a), np.asarray(b)) for a, b in pi_hidden],
                 "value": [Hidden(np.asarray(a), np.asarray(b)) for a, b in vf_hidden]}
 

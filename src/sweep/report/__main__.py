@@ -70,6 +70,8 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
 
     written += tables.write_tables(runs, histories, conds, out_dir, base)
     print(f"sweep.report: wrote {len(written)} files")
+    print("\n" + (out_dir / "brief.txt").read_text())
+    print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))
     return out_dir.resolve()
 
 

@@ -204,5 +204,18 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         "the wind schedule (wind.segment_steps timesteps at the speed in the header), mean ± 95% Student-t CI "
         "over seeds. A policy that collapses shows as a falling row; one that adapts, as a row that recovers "
         "after each change.\n\n" + markdown(seg_display.fillna("–")))
+    (out / "brief.txt").write_text(brief(s_display))
     return [out / f for f in ("table3.csv", "table3.md", "table3.tex", "summary.csv", "summary.md",
-                              "segments.csv", "segments.md")]
+                              "segments.csv", "segments.md", "brief.txt")]
+
+
+BRIEF = ("Agent", "Wind", "Seeds", "Eval success (%)", "Eval crash (%)", "Final reward")
+
+
+def brief(display: pd.DataFrame) -> str:
+    """The summary's few columns a terminal shows at the end of a sweep (plain fixed-width text)."""
+    rows = [list(BRIEF)] + [[str(r[c]) for c in BRIEF] for _, r in display.iterrows()]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(BRIEF))]
+    lines = ["  ".join(cell.ljust(w) if i < 2 else cell.rjust(w) for i, (cell, w) in enumerate(zip(row, widths)))
+             for row in rows]
+    return "\n".join([lines[0], "  ".join("-" * w for w in widths), *lines[1:]]) + "\n"
