@@ -29,6 +29,13 @@ def test_two_job_multirun_writes_two_runs_into_one_fresh_store(tmp_path):
         winds = [m.value for m in client.get_metric_history(r.info.run_id, "env/wind_speed")]
         assert winds == [2.0, 2.5]  # global steps 512 and 1024 with 512-step segments
     assert "2/2 jobs finished" in proc.stdout
+    # the start announces the sweep's size and expected time; the end links the runs table of a
+    # model-training experiment (MLflow 3 would otherwise open its GenAI overview)
+    assert "sweep: 2 jobs, expected wall time ~" in proc.stdout and "agent.learner=jax" in proc.stdout
+    exp = client.get_experiment_by_name("recom-hover")
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
+    assert (f"sweep: then the runs table: http://127.0.0.1:5000/#/experiments/{exp.experiment_id}"
+            "?workflowType=machine_learning") in proc.stdout
 
 
 def test_three_agents_log_every_metric(tmp_path):

@@ -223,7 +223,7 @@ def chromium() -> str:
 
 def test_printed_link_opens_the_runs_table_in_a_real_browser(tmp_path):
     """A small sweep prints the runs-table link; a real ``mlflow ui`` serves it; headless Chromium's DOM holds every
-    run name (the page a bare link would open, MLflow 3's GenAI overview, holds none)."""
+    run name."""
     from conftest import TINY, run_cli
 
     browser = chromium()
