@@ -250,7 +250,7 @@ def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
     from sweep.plasticity.diagnostics import PlasticityDiagnostics
 
     # the callbacks of a real run (run.py) but the MLflow writer: remedies, diagnostics, env statistics
-    callback = CallbackList([*remedies, PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()])
+    callback = CallbackList([*remedies, PlasticityDiagnostics.from_config(cfg.plasticity), EnvMonitor()])
     model.learn(ROLLOUT, callback=callback)  # warm-up (compilation)
     spent[0] = 0.0
     t0 = time.perf_counter()
@@ -258,6 +258,32 @@ def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
     wall = time.perf_counter() - t0
     return {"agent": agent, "wall": wall, "fps": rollouts * ROLLOUT / wall, "remedy_s": spent[0],
             "share": spent[0] / wall}
+
+
+def probe_seconds(repeats: int = 5) -> float:
+    """Wall time of one plasticity probe (sweep.plasticity.probe) with the default settings, best of ``repeats``."""
+    import torch
+
+    torch.set_num_threads(1)
+    from hydra import compose, initialize_config_dir
+
+    from sweep.agents import build_learner
+    from sweep.envs.hover import HoverVecEnv
+    from sweep.plasticity.probe import probe_fit
+    from sweep.tracking import PROJECT_ROOT
+
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["agent.learner=jax"])
+    model = build_learner(cfg.agent, HoverVecEnv(n_envs=1, seed=0), 0)
+    obs = np.random.default_rng(0).normal(size=(cfg.plasticity.probe.observations, 13)).astype(np.float32)
+    p = cfg.plasticity.probe
+    probe_fit(model, obs, 20, p.batch_size, p.lr)  # warm-up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        probe_fit(model, obs, p.steps, p.batch_size, p.lr)
+        times.append(time.perf_counter() - t0)
+    return min(times)
 
 
 def remedy_rows() -> list[tuple[str, str, str, str, str]]:
@@ -276,6 +302,13 @@ def remedy_rows() -> list[tuple[str, str, str, str, str]]:
         rows.append((f"remedy cost, JAX 1 x 2048, agent={agent}: own share of the run; run time vs PPO",
                      f"{best['ppo']['fps']:,.0f} ts/s (ppo)", f"{100 * share:.2f}%; {best[agent]['fps']:,.0f} ts/s",
                      f"{ratio:.3f}x", f"own share <= 5%: {'met' if share <= 0.05 else 'MISSED'}"))
+    probe = _fresh_pool_map(probe_seconds, [()])[0]
+    run_s = PAPER_STUDY[1] / best["ppo"]["fps"]
+    probes = PAPER_STUDY[1] // 2_000_000 + 1  # at every wind change of the paper's schedule, and at the end
+    share = probes * probe / run_s
+    rows.append(("plasticity probe (500 steps): s per probe; share of a 20M-step JAX run (11 probes)",
+                 f"{run_s:,.0f} s run", f"{probe:.2f} s; {100 * share:.2f}%", "",
+                 f"<= 2%: {'met' if share <= 0.02 else 'MISSED'}"))
     return rows
 
 

@@ -58,7 +58,7 @@ def test_diagnostics_report_exactly_the_units_made_dormant(name):
         params[f"mlp_extractor.policy_net.{2 * layer}.weight"][units] = 0.0
         params[f"mlp_extractor.policy_net.{2 * layer}.bias"][units] = 0.0
     model.write_parameters(params)
-    diagnostics = PlasticityDiagnostics(**cfg.plasticity)
+    diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
     diagnostics.init_callback(model)
     obs = recent_rollout(model.rollout_buffer, cfg.plasticity.batch_size)[0]
     pi_layers = [h.post for h in model.hidden_activations(obs)["policy"]]
@@ -77,7 +77,7 @@ def test_diagnostics_agree_between_learners_on_the_same_weights_and_batch():
     jx.rollout_buffer = sb3.rollout_buffer
     measured = []
     for model in (sb3, jx):
-        diagnostics = PlasticityDiagnostics(**cfg.plasticity)
+        diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
         diagnostics.init_callback(model)
         measured.append(diagnostics.measure())
     assert measured[0].keys() == measured[1].keys()
@@ -237,3 +237,84 @@ def test_l2_scope_is_configurable(name):
     L2Regularization(coef=0.1, params=["value", "log_std"], biases=True).init_callback(model)
     assert model.l2_decayed == sorted(["log_std", "value_net.weight", "value_net.bias",
                                        *(f"mlp_extractor.value_net.{i}.{p}" for i in (0, 2) for p in ("weight", "bias"))])
+
+
+# ---- readings a tanh network can show (issue: the paper's ~11% dormant units) ----------------------------
+def test_tanh_readings_on_hand_built_activations():
+    """6 tanh units on 100 samples, each built to be caught by exactly the readings it should be."""
+    rng = np.random.default_rng(0)
+    b = 100
+    h = np.empty((b, 6))
+    h[:, 0] = 0.0                                     # silent: Sokar-dormant (and signed mean 0)
+    h[:, 1] = 0.995                                   # stuck at +1 on every sample: dead tanh
+    h[:, 2] = np.where(np.arange(b) < 99, -0.999, 0.3)  # saturated on exactly 99%: dead (>= 99%)
+    h[:, 3] = np.where(np.arange(b) < 98, 0.999, 0.3)   # saturated on 98%: not dead
+    h[:, 4] = np.where(np.arange(b) % 2 == 0, 0.8, -0.8)  # swings +-0.8: signed mean 0, fully active
+    h[:, 5] = rng.uniform(0.2, 0.6, b)                 # an ordinary unit
+    from sweep.plasticity.dormant import active_ratio, dead_tanh_mask, pooled, signed_mean_mask
+
+    assert dead_tanh_mask(h, 0.99, 0.99).tolist() == [False, True, True, False, False, False]
+    assert signed_mean_mask(h, 0.1).tolist() == [True, False, False, False, True, False]
+    assert dormant_mask(h, 0.025).tolist() == [True, False, False, False, False, False]
+    # Sokar at 0.1 catches nothing more here: every other unit's |h| is large
+    assert dormant_mask(h, 0.1).tolist() == [True, False, False, False, False, False]
+    saturated = (np.abs(h) > 0.99).mean()
+    assert active_ratio([h], "tanh")[0] == pytest.approx(1 - saturated)
+    assert active_ratio([np.array([[1.0, -1.0], [0.0, 2.0]])], "relu") == (0.5, [0.5])
+    # pooled over layers vs per layer
+    assert pooled([np.array([True, False]), np.array([True, True, False, False])]) == (0.5, [0.5, 0.5])
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_diagnostics_log_every_reading_per_layer_and_pooled(name):
+    cfg, model = learner(name, ["agent.ppo.n_steps=256"], n_envs=4)
+    model.learn(1024)
+    params = model.parameter_arrays()   # make layer 1's units 0-9 stuck at +1: huge bias, zero weights
+    params["mlp_extractor.policy_net.2.weight"][:10] = 0.0
+    params["mlp_extractor.policy_net.2.bias"][:10] = 10.0
+    model.write_parameters(params)
+    diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
+    diagnostics.init_callback(model)
+    stats = diagnostics.measure()
+    assert stats["dead_tanh_ratio_layer1"] == 10 / 64 and stats["dead_tanh_ratio"] == 10 / 128
+    assert stats["dead_tanh_ratio_layer0"] == 0.0
+    assert stats["dormant_ratio_tau0.1"] >= stats["dormant_ratio"]
+    for key in ("dormant_ratio_tau0.1", "signed_mean_ratio", "active_ratio"):
+        assert key in stats and f"{key}_layer0" in stats and f"{key}_layer1" in stats
+    assert stats["active_ratio_layer1"] <= 1 - 10 / 64 + 1e-9
+
+
+# ---- the plasticity probe (Lyle et al. 2022) ------------------------------------------------------------
+@pytest.mark.parametrize("name", LEARNERS)
+def test_probe_fits_worse_once_units_are_saturated(name):
+    from sweep.plasticity.probe import probe_fit
+
+    _, model = learner(name)
+    obs = np.random.default_rng(4).normal(size=(512, 13)).astype(np.float32)
+    fresh = probe_fit(model, obs, steps=300)
+    params = model.parameter_arrays()
+    for layer in ("mlp_extractor.policy_net.0", "mlp_extractor.policy_net.2"):
+        params[f"{layer}.weight"] *= 30.0   # pre-activations x30: almost every tanh unit at +-1
+    model.write_parameters(params)
+    saturated = probe_fit(model, obs, steps=300)
+    assert fresh[1] < fresh[0]                    # it learns
+    assert saturated[1] > 1.5 * fresh[1], (fresh, saturated)
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_probe_leaves_weights_optimizer_and_every_rng_alone(name):
+    from sweep.plasticity.probe import PlasticityProbe
+
+    cfg, model = learner(name, ["agent.ppo.n_steps=256"], n_envs=4)
+    model.learn(512)
+    before = (model.parameter_arrays(), model.optimizer_moments(), model.rng.bit_generator.state,
+              np.random.get_state()[1].copy(), torch.get_rng_state().clone())
+    probe = PlasticityProbe(**cfg.plasticity.probe)
+    probe.init_callback(model)
+    stats = probe.measure()
+    assert stats["plasticity/probe_loss"] < stats["plasticity/probe_loss_early"]
+    after = (model.parameter_arrays(), model.optimizer_moments(), model.rng.bit_generator.state,
+             np.random.get_state()[1], torch.get_rng_state())
+    assert all(np.array_equal(before[0][k], after[0][k]) for k in before[0])
+    assert all(np.array_equal(a, b) for k in before[1] for a, b in zip(before[1][k], after[1][k]))
+    assert before[2] == after[2] and np.array_equal(before[3], after[3]) and torch.equal(before[4], after[4])

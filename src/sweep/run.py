@@ -29,6 +29,7 @@ from sweep.envs import WindSchedule
 from sweep.evaluate import PeriodicEvaluation, evaluate, make_env
 from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
+from sweep.plasticity.probe import PlasticityProbe
 from sweep.status import read_status, write_status
 from sweep.tracking import PROJECT_ROOT, MlflowWriter, TrackedRun, last_logged_step, tracking_uri
 
@@ -94,7 +95,10 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
                         direction=list(cfg.wind.direction), name=cfg.wind.name)
     env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed)
-    callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics(**cfg.plasticity), EnvMonitor()]
+    callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics.from_config(cfg.plasticity), EnvMonitor()]
+    probe = PlasticityProbe(**cfg.plasticity.probe, activation=cfg.agent.policy.activation, seed=cfg.seed) \
+        if cfg.plasticity.probe.steps > 0 else None
+    callbacks += [probe] if probe else []
     if cfg.eval.every_timesteps > 0:
         callbacks.append(PeriodicEvaluation(cfg, cfg.eval.every_timesteps))
     checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
@@ -123,6 +127,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
                 model.learn(total_timesteps=remaining, callback=CallbackList(callbacks),
                             reset_num_timesteps=state is None)
                 checkpointer.save()
+                if probe:  # the probe at the end of training, logged at the final step like the evaluation
+                    tracked.log_metrics(probe.measure(), model.num_timesteps)
         finally:
             writer.flush()  # what was logged before a failure is kept too
 

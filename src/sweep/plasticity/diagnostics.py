@@ -6,6 +6,11 @@ observations of that rollout:
   plasticity/dormant_ratio           tau-dormant share over the policy network's hidden layers (paper Figs. 4-5)
   plasticity/dormant_ratio_layer{i}  per hidden layer of the policy network
   plasticity/value_dormant_ratio     the same over the value network's hidden layers
+  plasticity/dormant_ratio_tau{t}    Sokar's ratio at each further threshold of ``extra_taus`` (0.1: ReDo's authors)
+  plasticity/dead_tanh_ratio         units with |h| > saturation on >= dead_fraction of the batch (stuck at +-1)
+  plasticity/signed_mean_ratio       units whose signed mean output is ~0: |E h_i| / mean_k E|h_k| <= signed_mean_tau
+  plasticity/active_ratio            Plasticine's active share (tanh: 1 - share of |h| > saturation; ReLU: h > 0)
+  (each of these four also per hidden layer, ``..._layer{i}``)
   plasticity/saturated_ratio         share of policy activations with |h| > saturation (tanh saturation)
   plasticity/srank                   effective rank of the policy's last hidden features (Kumar et al. 2021)
   plasticity/weight_norm             L2 norm of all policy+value parameters
@@ -17,7 +22,8 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.plasticity.batch import recent_rollout
-from sweep.plasticity.dormant import dormant_ratio, saturated_ratio, srank
+from sweep.plasticity.dormant import (active_ratio, dead_tanh_mask, dormant_mask, dormant_ratio, pooled,
+                                     saturated_ratio, signed_mean_mask, srank)
 
 
 class PlasticityDiagnostics(BaseCallback):
@@ -25,11 +31,19 @@ class PlasticityDiagnostics(BaseCallback):
     ``loss_grad_norm``), so the statistics are the same code for every learner."""
 
     def __init__(self, every_rollouts: int = 1, tau: float = 0.025, batch_size: int = 1024,
-                 saturation: float = 0.99, srank_delta: float = 0.01) -> None:
+                 saturation: float = 0.99, srank_delta: float = 0.01, extra_taus=(0.1,), dead_fraction: float = 0.99,
+                 signed_mean_tau: float = 0.1, activation: str = "tanh") -> None:
         super().__init__()
         self.every, self.tau, self.batch_size = int(every_rollouts), float(tau), int(batch_size)
         self.saturation, self.srank_delta = float(saturation), float(srank_delta)
+        self.extra_taus, self.dead_fraction = tuple(float(t) for t in extra_taus), float(dead_fraction)
+        self.signed_mean_tau, self.activation = float(signed_mean_tau), activation
         self.rollouts = 0
+
+    @classmethod
+    def from_config(cls, plasticity) -> "PlasticityDiagnostics":
+        """From the ``plasticity`` config group (its ``probe`` settings are the probe's, sweep.plasticity.probe)."""
+        return cls(**{k: v for k, v in plasticity.items() if k != "probe"})
 
     def state_dict(self) -> dict:
         return {"rollouts": self.rollouts}
@@ -57,6 +71,14 @@ class PlasticityDiagnostics(BaseCallback):
         for i, r in enumerate(per_layer):
             stats[f"dormant_ratio_layer{i}"] = r
         stats["value_dormant_ratio"], _ = dormant_ratio(vf_layers, self.tau)
+        readings = {f"dormant_ratio_tau{t:g}": [dormant_mask(h, t) for h in pi_layers] for t in self.extra_taus}
+        readings["dead_tanh_ratio"] = [dead_tanh_mask(h, self.saturation, self.dead_fraction) for h in pi_layers]
+        readings["signed_mean_ratio"] = [signed_mean_mask(h, self.signed_mean_tau) for h in pi_layers]
+        for name, masks in readings.items():
+            stats[name], per_layer = pooled(masks)
+            stats.update({f"{name}_layer{i}": r for i, r in enumerate(per_layer)})
+        stats["active_ratio"], per_layer = active_ratio(pi_layers, self.activation, self.saturation)
+        stats.update({f"active_ratio_layer{i}": r for i, r in enumerate(per_layer)})
         stats["saturated_ratio"] = saturated_ratio(pi_layers, self.saturation)
         stats["srank"] = float(srank(pi_layers[-1], self.srank_delta))
         stats["weight_norm"] = float(np.sqrt(sum(float((p.astype(np.float64) ** 2).sum())

@@ -1,5 +1,5 @@
-"""Dormant units (Sokar et al. 2023, ReDo) and the other per-layer plasticity statistics, on NumPy arrays
-of hidden activations (batch B x units H), whichever learner produced them.
+"""Dormant units (Sokar et al. 2023, ReDo), the readings a tanh network can show, and the other per-layer
+plasticity statistics, on NumPy arrays of hidden activations (batch B x units H), whichever learner made them.
 
 Unit i's score is
 
@@ -31,6 +31,37 @@ def dormant_ratio(layers: list[np.ndarray], tau: float) -> tuple[float, list[flo
     total = sum(m.size for m in masks)
     overall = sum(int(m.sum()) for m in masks) / max(total, 1)
     return overall, [float(m.mean()) for m in masks]
+
+
+def pooled(masks: list[np.ndarray]) -> tuple[float, list[float]]:
+    """(share of units over all layers, share per layer) of per-unit boolean masks."""
+    total = sum(m.size for m in masks)
+    return sum(int(m.sum()) for m in masks) / max(total, 1), [float(m.mean()) for m in masks]
+
+
+def dead_tanh_mask(h: np.ndarray, saturation: float = 0.99, fraction: float = 0.99) -> np.ndarray:
+    """Units saturated (|h| > ``saturation``) on at least ``fraction`` of the batch: a tanh unit stuck at +-1
+    passes no gradient and carries no information, yet Sokar's |h| score rates it as maximally active. This is
+    Dohare et al. (2024)'s dead unit ("active on <= 1% of inputs") carried over to a saturating activation."""
+    return (np.abs(h) > saturation).mean(axis=0) >= fraction
+
+
+def signed_mean_mask(h: np.ndarray, tau: float) -> np.ndarray:
+    """Units whose output averages to about 0 over the batch: |E_x h_i| / (1/H sum_k E_x |h_k|) <= tau. NOT the
+    same as a unit that does nothing (a unit swinging between -1 and +1 scores 0); a candidate for what the
+    paper computed, measured beside the others."""
+    layer_mean = np.abs(h).mean(axis=0).mean()
+    if layer_mean <= 0:
+        return np.ones(h.shape[1], bool)
+    return np.abs(h.mean(axis=0)) / layer_mean <= tau
+
+
+def active_ratio(layers: list[np.ndarray], activation: str, saturation: float = 0.99) -> tuple[float, list[float]]:
+    """Plasticine's active-unit share over (sample, unit) pairs: ReLU, h > 0; tanh, 1 - share with |h| > saturation."""
+    def share(h):
+        return float((h > 0).mean()) if activation == "relu" else float(1.0 - (np.abs(h) > saturation).mean())
+    n = sum(np.asarray(h).size for h in layers)
+    return sum(share(h) * np.asarray(h).size for h in layers) / max(n, 1), [share(h) for h in layers]
 
 
 def saturated_ratio(layers: list[np.ndarray], threshold: float) -> float:

@@ -19,7 +19,9 @@ class Curve:
     """One panel of training curves: ``key`` (an MLflow metric, step = timesteps) times ``scale`` against
     timesteps. ``percent``: y from 0 (at least 0-1, so an all-zero curve is not centred on 0); ``ylim``: fixed
     y limits instead. ``sparse``: a metric logged at few steps (evaluations), drawn on its logged steps with a
-    marker at each; its figure is written only if some run logged it at >= 2 steps."""
+    marker at each; its figure is written only if some run logged it at >= 2 steps. ``ylabel`` and ``note`` (what
+    the panel's reading is, in a note below the figure's legend) may name the thresholds of the runs drawn,
+    ``{dormant_tau}``, ``{saturation}``, ``{dead_fraction}``, ``{signed_mean_tau}`` (see ``thresholds``)."""
     key: str
     ylabel: str
     scale: float = 1.0
@@ -27,6 +29,7 @@ class Curve:
     percent: bool = False
     ylim: tuple[float, float] | None = None
     sparse: bool = False
+    note: str = ""
 
 
 # File stem (figure <stem>_<wind>) -> its panels, top to bottom. A figure is written for a wind condition when
@@ -34,8 +37,19 @@ class Curve:
 CURVES = {
     "reward": [Curve("rollout/ep_rew_mean", "Mean episode reward")],
     "episode_length": [Curve("rollout/ep_len_mean", "Mean episode length (steps)")],
-    "dormant": [Curve("plasticity/dormant_ratio", "Dormant units,\npolicy net (%)", 100.0, percent=True),
-                Curve("plasticity/saturated_ratio", "Saturated units,\npolicy net (%)", 100.0, percent=True)],
+    # the policy network's readings a tanh network can show (issue 18), each a share of its hidden units pooled
+    # over the layers (saturated: of its activations); older stores have the first and the last only
+    "dormant": [Curve("plasticity/dormant_ratio", "Sokar dormant,\nτ = {dormant_tau} (%)", 100.0, percent=True,
+                      note="Sokar dormant: E|h| ≤ τ × the layer's mean E|h|."),
+                Curve("plasticity/dormant_ratio_tau0.1", "Sokar dormant,\nτ = 0.1 (%)", 100.0, percent=True),
+                Curve("plasticity/dead_tanh_ratio", "Dead tanh\nunits (%)", 100.0, percent=True,
+                      note="Dead tanh: |h| > {saturation} on ≥ {dead_fraction} of the batch (stuck at ±1)."),
+                Curve("plasticity/signed_mean_ratio", "Signed mean\n≈ 0 (%)", 100.0, percent=True,
+                      note="Signed mean ≈ 0: |E h| ≤ {signed_mean_tau} × the layer's mean E|h| (a unit swinging "
+                           "between ±1 counts: not an idle unit)."),
+                Curve("plasticity/saturated_ratio", "Saturated\nactivations (%)", 100.0, percent=True,
+                      note="Saturated: share of all activations with |h| > {saturation} (for tanh, 100 − "
+                           "Plasticine's active share).")],
     "weight_norm": [Curve("plasticity/weight_norm", "Weight norm, policy + value nets")],
     "learning_rate": [Curve("train/learning_rate", "Learning rate", logy=True)],
     "eval_success": [Curve("eval/success_rate", "Evaluation success (%)", 100.0, ylim=(-3, 103), sparse=True)],
@@ -45,7 +59,12 @@ CURVES = {
                    Curve("train/approx_kl", "Approx. KL\nper update", logy=True),
                    Curve("train/clip_fraction", "Clip fraction (%)", 100.0, percent=True)],
 }
+# What a figure's panels measure, before the notes of the panels drawn (below the legend).
+NOTES = {"dormant": "Policy network's hidden units, pooled over its hidden layers."}
+# conf/config.yaml's plasticity thresholds: the labels' values for runs that did not log the param (older stores)
+THRESHOLDS = {"dormant_tau": 0.025, "saturation": 0.99, "dead_fraction": 0.99, "signed_mean_tau": 0.1}
 BAND = "mean over n seeds; band: 95% bootstrap CI"
+PANEL_STEP = {True: 1.4, False: 1.15}  # inches per panel below the first: up to 3 panels (True), more (False)
 POSITION_COLUMNS = 4  # conditions side by side in eval_position_axes
 
 
@@ -104,6 +123,20 @@ def has_data(curve: Curve, hist: pd.DataFrame) -> bool:
     return not curve.sparse or int(hist.groupby("run_id")["step"].nunique().max()) >= 2
 
 
+def thresholds(sub: pd.DataFrame) -> dict[str, str]:
+    """The plasticity thresholds the runs of ``sub`` logged, as text for labels: one value, or all values joined
+    by '/' where runs differ; THRESHOLDS' value where no run logged the param. ``dead_fraction`` as a percentage."""
+    text = {}
+    for name, default in THRESHOLDS.items():
+        logged = pd.to_numeric(sub[name], errors="coerce") if name in sub else pd.Series(dtype=float)
+        values = sorted(set(logged.dropna())) or [default]
+        if name == "dead_fraction":
+            text[name] = "/".join(f"{100 * v:g}" for v in values) + "%"
+        else:
+            text[name] = "/".join(f"{v:g}" for v in values)
+    return text
+
+
 def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: str, conds, out: Path) -> list[Path]:
     """Figure <stem>_<wind>: per condition the mean over seeds with a 95% bootstrap band, one panel per Curve."""
     sub = runs[runs["wind"] == wind]
@@ -113,12 +146,15 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
         return []
     panels = [p for p in panels if has_data(*p)]
     x_max = max(float(h["step"].max()) for _, h in panels)
-    fig, axes = plt.subplots(len(panels), 1, figsize=(style.COLUMN_WIDTH, 2.3 + 1.4 * (len(panels) - 1)),
+    step = PANEL_STEP[len(panels) <= 3]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(style.COLUMN_WIDTH, 2.3 + step * (len(panels) - 1)),
                              sharex=True, squeeze=False)
     axes, seeds = axes[:, 0], []
     spans = wind_changes(sub.iloc[0]["speeds"], sub.iloc[0]["segment_steps"], x_max)
+    values = thresholds(sub)
     for i, (ax, (curve, hist)) in enumerate(zip(axes, panels)):
         seeds.append(_panel(ax, curve, hist, sub, conds))
+        ax.set_ylabel(curve.ylabel.format(**values))
         ax.set_xlim(0, x_max * (1.05 if len(stats.common_grid(hist)) == 1 or curve.sparse else 1.0))
         mark_wind(ax, spans, speeds=i == 0)
     timestep_axis(axes[-1], x_max)
@@ -137,6 +173,11 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
         box = legend.get_window_extent(fig.canvas.get_renderer())
         if box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1:
             break
+    notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in panels]
+    if any(notes[1:]):  # what each reading is, below the legend, left-aligned with the panels
+        left = axes[-1].get_position().x0 * fig.get_figwidth()
+        fig.text(left, box.y0 / fig.dpi - 0.04, textwrap.fill(" ".join(n for n in notes if n), 60),
+                 transform=fig.dpi_scale_trans, ha="left", va="top", color="0.25")
     if len(axes) > 1:
         fig.align_ylabels(axes)
     return save(fig, out, f"{stem}_{wind}")
@@ -156,7 +197,6 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
                 label=cond)
         ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0)
         seeds[cond] = len(matrix)
-    ax.set_ylabel(curve.ylabel)
     if curve.logy:
         ax.set_yscale("log")
         ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible

@@ -26,12 +26,18 @@ EVAL_KEYS = ["eval/success_rate", "eval/mse_x", "eval/mse_y", "eval/mse_z", "eva
 CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate", "rollout/ep_len_mean",
               "plasticity/weight_norm", "plasticity/saturated_ratio"]  # every run logs these
 OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate",  # only RECOM / eval during training
-                 "train/std", "train/approx_kl", "train/clip_fraction"]  # PPO's update statistics
+                 "train/std", "train/approx_kl", "train/clip_fraction",  # PPO's update statistics
+                 # the policy's readings a tanh network can show (issue 18); stores logged before lack them
+                 "plasticity/dormant_ratio_tau0.1", "plasticity/dead_tanh_ratio", "plasticity/signed_mean_ratio",
+                 "plasticity/active_ratio"]
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
-              "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius"}
+              "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius",
+              # the thresholds of the plasticity readings, for the dormant figure's labels (None where not logged)
+              "plasticity.tau": "dormant_tau", "plasticity.saturation": "saturation",
+              "plasticity.dead_fraction": "dead_fraction", "plasticity.signed_mean_tau": "signed_mean_tau"}
 
 
 class ReportError(Exception):

@@ -1,0 +1,103 @@
+"""A direct plasticity probe (Lyle et al. 2022, "Understanding and preventing capacity loss in RL").
+
+At every change of the wind and at the end of training, a *copy* of the policy network is fitted for N
+steps (Adam, minibatches of the most recent observations) to fixed random regression targets,
+
+    min_theta  1/B sum_x || f_theta(x) - y(x) ||^2,     y = g(x) / std(g(x)),
+
+with g a network of the same shape drawn afresh from the init distribution (orthogonal weights, gain
+sqrt 2, a unit-gain head) by the probe's own generator: a fixed random function of the observations,
+standardised per output, so a plastic network fits it in a few hundred steps (loss ~0 is reachable, 1 is
+the loss of predicting 0),
+
+and the loss is logged after N/10 steps (``plasticity/probe_loss_early``) and after N steps
+(``plasticity/probe_loss``, the mean of the last N/10 steps). A network that has lost plasticity fits worse
+than a fresh one (tests/test_plasticity.py saturates units by hand to check it). The copy is a torch
+module built from ``learner.parameter_arrays()`` (either learner); the probe draws only from its own
+generator, so the learner's weights, optimizer state and every RNG are untouched (tested).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sweep.agents.learner import Learner
+from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, orthogonal
+from sweep.plasticity.batch import recent_rollout
+
+
+def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batch_size: int = 256,
+              lr: float = 1e-3, seed: int = 0, activation: str = "tanh") -> tuple[float, float]:
+    """(loss after steps/10, final loss) of fitting a copy of the policy network to random targets."""
+    net = learner.networks[0]
+    arrays = learner.parameter_arrays()
+    params = {k: torch.tensor(v, dtype=torch.float32, requires_grad=True) for k, v in arrays.items()
+              if k.startswith(tuple(net.linears) + tuple(n for n in net.norms if n))}
+    act = torch.tanh if activation == "tanh" else torch.relu
+
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        for layer, norm in zip(net.hidden, net.norms):
+            x = x @ params[f"{layer}.weight"].T + params[f"{layer}.bias"]
+            if norm:
+                x = torch.nn.functional.layer_norm(x, x.shape[-1:], params[f"{norm}.weight"], params[f"{norm}.bias"],
+                                                   LAYER_NORM_EPS)
+            x = act(x)
+        return x @ params[f"{net.head}.weight"].T + params[f"{net.head}.bias"]
+
+    rng = np.random.default_rng(seed)   # the probe's own generator: no global RNG is touched
+    obs = torch.as_tensor(np.asarray(observations, np.float32))
+    y = np.asarray(observations, np.float64)
+    for layer in (*net.hidden, net.head):   # g: a fresh random network of the same shape
+        w = orthogonal(arrays[f"{layer}.weight"].shape, HIDDEN_GAIN if layer != net.head else 1.0, rng)
+        y = y @ w.T
+        y = np.tanh(y) if layer != net.head else y
+    targets = torch.as_tensor((y - y.mean(0)) / (y.std(0) + 1e-8), dtype=torch.float32)
+    optimizer = torch.optim.Adam(params.values(), lr=lr)
+    losses = np.empty(steps)
+    for step in range(steps):
+        idx = torch.as_tensor(rng.integers(0, len(obs), min(batch_size, len(obs))))
+        loss = torch.mean((forward(obs[idx]) - targets[idx]) ** 2)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses[step] = loss.item()
+    tenth = max(steps // 10, 1)
+    return float(losses[tenth - 1]), float(losses[-tenth:].mean())
+
+
+class PlasticityProbe(BaseCallback):
+    """Runs ``probe_fit`` at the first rollout end after each change of the wind segment; ``measure()`` at the
+    end of training is called by the run (logged at the final step, like the evaluation)."""
+
+    def __init__(self, steps: int = 500, batch_size: int = 256, lr: float = 1e-3, observations: int = 1024,
+                 activation: str = "tanh", seed: int = 0) -> None:
+        super().__init__()
+        self.steps, self.batch_size, self.lr = int(steps), int(batch_size), float(lr)
+        self.n_obs, self.activation, self.seed = int(observations), activation, int(seed)
+        self.segment: int | None = None
+        self.probes = 0
+
+    def state_dict(self) -> dict:
+        return {"segment": self.segment, "probes": self.probes}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.segment, self.probes = state["segment"], state["probes"]
+
+    def _on_step(self) -> bool:
+        return True
+
+    def measure(self) -> dict[str, float]:
+        obs = recent_rollout(self.model.rollout_buffer, self.n_obs)[0]
+        early, final = probe_fit(self.model, obs, self.steps, self.batch_size, self.lr, self.seed + self.probes,
+                                 self.activation)
+        self.probes += 1
+        return {"plasticity/probe_loss_early": early, "plasticity/probe_loss": final}
+
+    def _on_rollout_end(self) -> None:
+        env = self.training_env
+        segment = int(env.global_step // env.wind.segment_steps)
+        if self.segment is not None and segment != self.segment:
+            for key, value in self.measure().items():
+                self.logger.record(key, value)
+        self.segment = segment
