@@ -243,7 +243,9 @@ def test_a_jax_run_is_tracked_like_an_sb3_run(store, tmp_path):
     (h_sb3, p_sb3, t_sb3, a_sb3, l_sb3), (h_jax, p_jax, t_jax, a_jax, l_jax) = seen["sb3"], seen["jax"]
     assert (l_sb3, l_jax) == ("sb3", "jax") and t_sb3["learner"] == "sb3" and t_jax["learner"] == "jax"
     assert h_sb3 == h_jax and len(h_sb3) > 30  # every key, logged at the same timesteps
-    assert p_sb3 == p_jax and a_sb3 == a_jax == ["config.yaml", "eval_trajectories.npz", "model.zip"]
+    assert p_sb3 == p_jax and a_sb3 == a_jax == ["config.yaml", "eval_best_eval_trajectories.npz",
+                                                 "eval_best_trajectories.npz", "eval_trajectories.npz", "model.zip",
+                                                 "model_best.zip", "model_best_eval.zip"]
     different = {k for k in t_sb3 if t_sb3[k] != t_jax.get(k)} - {"learner", "overrides", "checkpoint_dir"}
     assert different == set() and t_sb3.keys() == t_jax.keys()
 

@@ -207,7 +207,8 @@ def test_resume_between_two_resets_is_the_uninterrupted_run(tmp_path, monkeypatc
               "agent.ppo.n_epochs=2", "train.total_timesteps=2048", "train.checkpoint_every=768", "seed=3",
               "eval.episodes=1", "env.episode_seconds=1.0"]
     keys = ("remedy/redo/reset_units", "remedy/cbp/replaced_units", "remedy/shrink_perturb/weight_norm_after",
-            "train/loss", "rollout/ep_rew_mean", "plasticity/weight_norm")
+            "train/loss", "rollout/ep_rew_mean", "plasticity/weight_norm", "eval_best/return", "eval_best/source_step",
+            "plasticity/probe_loss", "plasticity/dead_tanh_ratio")
 
     def histories(uri, run_id):
         client = MlflowClient(uri)
@@ -216,6 +217,7 @@ def test_resume_between_two_resets_is_the_uninterrupted_run(tmp_path, monkeypatc
     monkeypatch.setenv("MLFLOW_TRACKING_URI", ref_uri := f"sqlite:///{tmp_path / 'ref.db'}")
     reference = histories(ref_uri, run(compose_cfg(config), tmp_path / "ref"))
     assert len(reference["remedy/redo/reset_units"]) == 3 and len(reference["remedy/shrink_perturb/weight_norm_after"]) == 2
+    assert reference["eval_best/source_step"] and reference["plasticity/probe_loss"]   # the resumed run must keep the best
 
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := f"sqlite:///{tmp_path / 'cut.db'}")
     fault = ["+agent.fault._target_=faults.Fault", "+agent.fault.seed=3", "+agent.fault.at_step=1280"]

@@ -163,6 +163,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("plasticity.probe.lr", positive, "a number > 0"),
     ("plasticity.probe.observations", positive_int, "an integer > 0"),
     ("plasticity.signed_mean_tau", unit_interval, "a number in [0, 1]"),
+    ("eval.policy", one_of("final", "best", "both"), "final|best|both"),
     ("eval.episodes", positive_int, "an integer >= 1"),
     ("eval.every_timesteps", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (0: only at the end)"),
     ("eval.wind_speed", non_negative, "a number >= 0 (m/s)"),

@@ -23,6 +23,7 @@ from stable_baselines3.common.utils import set_random_seed
 from threadpoolctl import threadpool_limits
 
 from sweep.agents import build_learner, build_remedies
+from sweep.best_policy import PREFIXES, BestPolicies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, validate
 from sweep.envs import WindSchedule
@@ -101,6 +102,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     callbacks += [probe] if probe else []
     if cfg.eval.every_timesteps > 0:
         callbacks.append(PeriodicEvaluation(cfg, cfg.eval.every_timesteps))
+    best = BestPolicies()   # after PeriodicEvaluation: it reads the eval/return recorded at the same rollout end
+    callbacks.append(best)
     checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
     callbacks += [NonFiniteGuard(), checkpointer,
                   ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
@@ -132,16 +135,37 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
         finally:
             writer.flush()  # what was logged before a failure is kept too
 
-        metrics, flights = evaluate(model, cfg)
-        tracked.log_metrics(metrics, model.num_timesteps)
-        np.savez_compressed(out_dir / "eval_trajectories.npz", **flights)
-        tracked.log_artifact(out_dir / "eval_trajectories.npz")
-        if cfg.tracking.log_model:
-            model.save(out_dir / "model.zip")
-            tracked.log_artifact(out_dir / "model.zip")
-        log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+        if cfg.eval.policy in ("final", "both"):
+            metrics = evaluate_and_store(model, cfg, tracked, out_dir, "eval", "")
+            log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+        if cfg.eval.policy in ("best", "both"):
+            final = model.parameter_arrays()
+            for reading, kept in best.kept.items():
+                model.write_parameters(kept["params"])
+                prefix = PREFIXES[reading]
+                metrics = evaluate_and_store(model, cfg, tracked, out_dir, prefix, f"_{prefix.removeprefix('eval_')}",
+                                             {"source_step": kept["step"], "source_score": kept["score"]})
+                log.info("[%s] %s (from %s steps): %s", tags["run_name"], prefix, f"{kept['step']:,}",
+                         ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+            model.write_parameters(final)
     record.write(status="FINISHED")
     return tracked.run_id
+
+
+def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, prefix: str, suffix: str,
+                       extra: dict[str, float] | None = None) -> dict[str, float]:
+    """The evaluation protocol on the learner's current policy: metrics under ``<prefix>/*`` at the final step,
+    the flights as ``eval<suffix>_trajectories.npz`` and the model as ``model<suffix>.zip`` (run artifacts)."""
+    metrics, flights = evaluate(model, cfg)
+    metrics = {f"{prefix}/{k.split('/', 1)[1]}": v for k, v in metrics.items()}
+    metrics.update({f"{prefix}/{k}": float(v) for k, v in (extra or {}).items()})
+    tracked.log_metrics(metrics, model.num_timesteps)
+    np.savez_compressed(out_dir / f"eval{suffix}_trajectories.npz", **flights)
+    tracked.log_artifact(out_dir / f"eval{suffix}_trajectories.npz")
+    if cfg.tracking.log_model:
+        model.save(out_dir / f"model{suffix}.zip")
+        tracked.log_artifact(out_dir / f"model{suffix}.zip")
+    return metrics
 
 
 def run_job(cfg: DictConfig) -> str | None:

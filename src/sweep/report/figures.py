@@ -17,9 +17,9 @@ from sweep.report import stats, style
 @dataclass(frozen=True)
 class Curve:
     """One panel of training curves: ``key`` (an MLflow metric, step = timesteps) times ``scale`` against
-    timesteps. ``percent``: y from 0 (at least 0-1, so an all-zero curve is not centred on 0); ``ylim``: fixed
-    y limits instead. ``sparse``: a metric logged at few steps (evaluations), drawn on its logged steps with a
-    marker at each; its figure is written only if some run logged it at >= 2 steps. ``ylabel`` and ``note`` (what
+    timesteps. ``percent``: y from just below 0 (at least to 1, so an all-zero curve is not centred on 0; a panel
+    where every value is 0 says so); ``ylim``: fixed y limits instead. ``sparse``: a metric logged at few steps
+    (evaluations), drawn on its logged steps with a marker at each; its figure is written only if some run logged it at >= 2 steps. ``ylabel`` and ``note`` (what
     the panel's reading is, in a note below the figure's legend) may name the thresholds of the runs drawn,
     ``{dormant_tau}``, ``{saturation}``, ``{dead_fraction}``, ``{signed_mean_tau}`` (see ``thresholds``)."""
     key: str
@@ -40,15 +40,16 @@ CURVES = {
     # the policy network's readings a tanh network can show (issue 18), each a share of its hidden units pooled
     # over the layers (saturated: of its activations); older stores have the first and the last only
     "dormant": [Curve("plasticity/dormant_ratio", "Sokar dormant,\nτ = {dormant_tau} (%)", 100.0, percent=True,
-                      note="Sokar dormant: E|h| ≤ τ × the layer's mean E|h|."),
+                      note="Sokar dormant: units with E|h| ≤ τ × the layer's mean E|h|."),
                 Curve("plasticity/dormant_ratio_tau0.1", "Sokar dormant,\nτ = 0.1 (%)", 100.0, percent=True),
                 Curve("plasticity/dead_tanh_ratio", "Dead tanh\nunits (%)", 100.0, percent=True,
-                      note="Dead tanh: |h| > {saturation} on ≥ {dead_fraction} of the batch (stuck at ±1)."),
+                      note="Dead tanh: units with |h| > {saturation} on ≥ {dead_fraction} of the batch "
+                           "(stuck at ±1)."),
                 Curve("plasticity/signed_mean_ratio", "Signed mean\n≈ 0 (%)", 100.0, percent=True,
-                      note="Signed mean ≈ 0: |E h| ≤ {signed_mean_tau} × the layer's mean E|h| (a unit swinging "
-                           "between ±1 counts: not an idle unit)."),
+                      note="Signed mean ≈ 0: units with |E h| ≤ {signed_mean_tau} × the layer's mean E|h| "
+                           "(a unit swinging between ±1 counts: not an idle unit)."),
                 Curve("plasticity/saturated_ratio", "Saturated\nactivations (%)", 100.0, percent=True,
-                      note="Saturated: share of all activations with |h| > {saturation} (for tanh, 100 − "
+                      note="Saturated: activations with |h| > {saturation} (for tanh, 100 − "
                            "Plasticine's active share).")],
     "weight_norm": [Curve("plasticity/weight_norm", "Weight norm, policy + value nets")],
     "learning_rate": [Curve("train/learning_rate", "Learning rate", logy=True)],
@@ -60,7 +61,7 @@ CURVES = {
                    Curve("train/clip_fraction", "Clip fraction (%)", 100.0, percent=True)],
 }
 # What a figure's panels measure, before the notes of the panels drawn (below the legend).
-NOTES = {"dormant": "Policy network's hidden units, pooled over its hidden layers."}
+NOTES = {"dormant": "Policy network, its hidden layers pooled."}
 # conf/config.yaml's plasticity thresholds: the labels' values for runs that did not log the param (older stores)
 THRESHOLDS = {"dormant_tau": 0.025, "saturation": 0.99, "dead_fraction": 0.99, "signed_mean_tau": 0.1}
 BAND = "mean over n seeds; band: 95% bootstrap CI"
@@ -175,9 +176,9 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
             break
     notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in panels]
     if any(notes[1:]):  # what each reading is, below the legend, left-aligned with the panels
-        left = axes[-1].get_position().x0 * fig.get_figwidth()
-        fig.text(left, box.y0 / fig.dpi - 0.04, textwrap.fill(" ".join(n for n in notes if n), 60),
-                 transform=fig.dpi_scale_trans, ha="left", va="top", color="0.25")
+        top = box.y0 / fig.bbox.height - 0.04 / fig.get_figheight()  # figure coordinates (savefig's tight bbox
+        fig.text(axes[-1].get_position().x0, top, textwrap.fill(" ".join(n for n in notes if n), 60),  # moves them)
+                 ha="left", va="top", color="0.25")
     if len(axes) > 1:
         fig.align_ylabels(axes)
     return save(fig, out, f"{stem}_{wind}")
@@ -200,8 +201,12 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
     if curve.logy:
         ax.set_yscale("log")
         ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible
-    if curve.percent:
-        ax.set_ylim(0, max(1.0, ax.get_ylim()[1]))
+    if curve.percent:  # from just below 0: a curve at 0 shows above the axis line
+        top = max(1.0, ax.get_ylim()[1])
+        ax.set_ylim(-0.03 * top, top)
+        if seeds and (hist["value"] == 0).all():  # coinciding curves: say that every one of them is at 0
+            ax.text(0.5, 0.5, f"0 throughout for every {'condition' if conds.by else 'agent'}", transform=ax.transAxes,
+                    ha="center", va="center", color="0.3")
     if curve.ylim:
         ax.set_ylim(*curve.ylim)
     ax.grid(True)

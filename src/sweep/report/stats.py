@@ -89,12 +89,14 @@ def collapse(values: np.ndarray) -> float:
 
 
 FINALS = {"final_reward": "rollout/ep_rew_mean", "final_dormant": "plasticity/dormant_ratio",
-          "final_saturated": "plasticity/saturated_ratio", "final_weight_norm": "plasticity/weight_norm"}
+          "final_saturated": "plasticity/saturated_ratio", "final_weight_norm": "plasticity/weight_norm",
+          "final_dead_tanh": "plasticity/dead_tanh_ratio", "final_signed_mean": "plasticity/signed_mean_ratio"}
 
 
 def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
-    """One row per run: final value of each FINALS curve, collapse of the reward curve, and ``at_bound``: the
-    share of RECOM's LR updates clipped to a bound (mean of the recom/at_bound history; NaN without one)."""
+    """One row per run: final value of each FINALS curve (NaN for a curve the run did not log), collapse of the
+    reward curve, and ``at_bound``: the share of RECOM's LR updates clipped to a bound (mean of the recom/at_bound
+    history; NaN without one)."""
     rows = []
     for run_id, h in histories.groupby("run_id"):
         row = {"run_id": run_id}

@@ -101,7 +101,8 @@ def table3(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions) -> tupl
 
 def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
             baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Per condition x wind: seeds, final reward / dormant / saturated share / weight norm, collapse, share of
+    """Per condition x wind: seeds, final reward / dormant / saturated / dead tanh / signed-mean≈0 share / weight
+    norm (the mean over the seeds that logged it; NaN, shown '–', where none did), collapse, share of
     RECOM's LR updates at a bound, final evaluation success and crashes, IQM [CI], P(improve over PPO) [CI], and
     with ``baseline`` = (KEY, VALUE) the IQM difference to the baseline condition [CI]."""
     df = runs.merge(per_run, on="run_id", how="left")
@@ -116,6 +117,8 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
         num = {**_identity(conds, cond, wind), "n_seeds": len(g),
                "final_reward": g["final_reward"].mean(), "final_dormant_ratio": g["final_dormant"].mean(),
                "final_saturated_ratio": g["final_saturated"].mean(), "final_weight_norm": g["final_weight_norm"].mean(),
+               "final_dead_tanh_ratio": g["final_dead_tanh"].mean(),
+               "final_signed_mean_ratio": g["final_signed_mean"].mean(),
                "collapse": g["collapse"].mean(), "lr_at_bound_pct": 100 * g["at_bound"].mean(),
                "eval_success_pct": 100 * g["eval/success_rate"].mean(),
                "eval_crash_pct": 100 * g["eval/crash_rate"].mean(),
@@ -125,6 +128,8 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                  "Final reward": f"{num['final_reward']:.1f}",
                  "Final dormant (%)": f"{100 * num['final_dormant_ratio']:.2f}",
                  "Final saturated (%)": _fixed(100 * num["final_saturated_ratio"], 2),
+                 "Final dead tanh (%)": _fixed(100 * num["final_dead_tanh_ratio"], 2),
+                 "Final signed-mean≈0 (%)": _fixed(100 * num["final_signed_mean_ratio"], 2),
                  "Final weight norm": _fixed(num["final_weight_norm"], 1),
                  "Collapse": f"{num['collapse']:.1f}",
                  "LR at bound (%)": _fixed(num["lr_at_bound_pct"], 0),
@@ -185,8 +190,13 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     s_numbers, s_display = summary(runs, per_run, conds, baseline)
     s_numbers.to_csv(out / "summary.csv", index=False)
     note = (f"Final = mean over the last {stats.FINAL_FRACTION:.0%} of training timesteps (mean over seeds); "
-            "collapse = largest drop of the reward curve below its running peak; saturated = share of policy "
-            "activations with |h| above plasticity.saturation; weight norm = L2 norm of all policy and value "
+            "collapse = largest drop of the reward curve below its running peak; dormant = share of the policy's "
+            "hidden units that are τ-dormant (Sokar et al., τ = plasticity.tau); saturated = share of policy "
+            "activations with |h| above plasticity.saturation; dead tanh = share of the policy's hidden units with "
+            "|h| above plasticity.saturation on at least plasticity.dead_fraction of the batch; signed-mean≈0 = "
+            "share of the policy's hidden units whose signed mean output |E h| is at most plasticity.signed_mean_tau "
+            "times the layer's mean E|h| (a unit swinging between ±1 counts: not an idle unit; – where the runs "
+            "predate these two readings); weight norm = L2 norm of all policy and value "
             "parameters; LR at bound = share of RECOM's learning-rate updates clipped to lr_min or lr_max "
             "(– without RECOM); eval success / crash = the final evaluation's rates; IQM with 95% "
             "stratified-bootstrap CI (rliable); P(> PPO) = rliable probability of improvement of the final reward "
