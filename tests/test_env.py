@@ -217,3 +217,15 @@ def test_reward_scale_scales_what_the_learner_gets_not_the_logged_return():
         np.testing.assert_allclose(r2, 0.01 * r1, rtol=1e-6)
     assert d1.all() and d2.all()
     assert [i["episode"]["r"] for i in i2] == [i["episode"]["r"] for i in i1]
+
+
+def test_wind_after_the_list_repeats_or_holds():
+    """wind.after_list: the paper's five speeds over 20M steps, read as repeating (default) or holding the last."""
+    speeds = [3.0, 2.0, 2.5, 1.5, 2.5]
+    repeat = WindSchedule(speeds, 2_000_000, after_list="repeat")
+    hold = WindSchedule(speeds, 2_000_000, after_list="hold")
+    steps = np.arange(0, 20_000_000, 1_000_000)
+    assert [repeat.speed_at(s) for s in steps] == [s for s in speeds for _ in (0, 1)] * 2
+    assert [hold.speed_at(s) for s in steps] == [s for s in speeds for _ in (0, 1)] + [2.5] * 10
+    for w in (repeat, hold):   # the compiled rollout's vectorised lookup agrees with the scalar one
+        np.testing.assert_array_equal(w.velocities(steps)[:, 0], [w.speed_at(s) for s in steps])

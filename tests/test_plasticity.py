@@ -127,7 +127,8 @@ def drive_recom(recom: Recom, rollouts: list[tuple[float, list[float]]]) -> list
                                           "train/entropy_loss": 0.0}
         recom._on_rollout_start()
         for r in returns:
-            recom.locals = {"infos": [{"episode": {"r": r}}]}
+            r, length = r if isinstance(r, tuple) else (r, 1)
+            recom.locals = {"infos": [{"episode": {"r": r, "l": length}}]}
             recom._on_step()
         recom.num_timesteps += 100
         recom._on_rollout_end()
@@ -146,6 +147,18 @@ def test_recom_callback_on_synthetic_sequence():
     assert recom.logger.name_to_value["recom/cost"] == 51.0
     assert recom.logger.name_to_value["recom/cost_gradient"] == 34.0
     assert recom.logger.name_to_value["recom/at_bound"] == 0.0
+
+
+def test_recom_per_step_reward_reading():
+    """agent.recom.reward=per_step: R[t] is the episode's mean reward per step (return / length)."""
+    recom = Recom(interval=200, window=2, gain=1e-6, lr_min=1e-5, lr_max=1e-3, reward="per_step")
+    lrs = drive_recom(recom, [(None, [(-50.0, 5)]), (2.0, [(-10.0, 5), (-20.0, 10)]), (4.0, []),
+                              (1.0, [(-40.0, 20), (-60.0, 20)])])
+    # t=200: per-step rewards -2, -2 with loss 2: C = 4. t=400: -2, -3 with loss 1: C = (3 + 4)/2 = 3.5; G = -0.5
+    assert recom.logger.name_to_value["recom/cost"] == 3.5
+    assert lrs[3] == pytest.approx(3e-4 + 0.5e-6)
+    with pytest.raises(ValueError, match="reward"):
+        Recom(reward="mean")
 
 
 def test_recom_shifted_window_and_clipping():

@@ -214,6 +214,66 @@ def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, fligh
             client.set_terminated(run_id)
 
 
+# The dormant figure's readings of the policy network, top to bottom: key -> words its panel's y label must have.
+READINGS = {"plasticity/dormant_ratio": "Sokar dormant,\nτ = 0.05", "plasticity/dormant_ratio_tau0.1":
+            "Sokar dormant,\nτ = 0.1", "plasticity/dead_tanh_ratio": "Dead tanh",
+            "plasticity/signed_mean_ratio": "Signed mean\n≈ 0", "plasticity/saturated_ratio": "Saturated"}
+NEW_READINGS = ["plasticity/dormant_ratio_tau0.1", "plasticity/dead_tanh_ratio", "plasticity/signed_mean_ratio",
+                "plasticity/active_ratio"]
+
+
+def reading(key: str, k: int, seed: int, t: np.ndarray) -> np.ndarray:
+    """Known history of a plasticity reading of agent number ``k`` (t: 0 -> 1 over training): a different line
+    for every key, agent and seed, linear in t (so that the report's interpolation is exact); Sokar's ratio at
+    the run's τ is 0 throughout, as in a tanh network."""
+    if key == "plasticity/dormant_ratio":
+        return np.zeros_like(t)
+    j = list(READINGS).index(key) if key in READINGS else 5
+    return 0.02 * (j + 1) + 0.1 * k + 0.01 * seed + 0.05 * (j + 1) * (k + 1) * t
+
+
+def log_reading_runs(client: MlflowClient, experiment: str) -> None:
+    """Experiment ``experiment``: PPO and L2 log every reading (NEW_READINGS too), RECOM logged before the new
+    readings existed (Sokar's ratio and the saturated share only); two seeds each, steps 0-1000, one wind."""
+    exp_id = client.create_experiment(experiment)
+    steps = np.arange(0, 1001, 100)
+    for k, agent in enumerate(["ppo", "l2", "recom_l2"]):
+        keys = ["plasticity/dormant_ratio", "plasticity/saturated_ratio"] + (NEW_READINGS if k < 2 else [])
+        for seed in range(2):
+            run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                     "run_name": f"{agent}-s{seed}", "sweep": "readings"}).info.run_id
+            params = {"wind.speeds": "[3.0]", "wind.segment_steps": "100000", "plasticity.tau": "0.05",
+                      "plasticity.saturation": "0.95", "plasticity.signed_mean_tau": "0.2"}
+            if k < 2:
+                params["plasticity.dead_fraction"] = "0.9"
+            metrics = [Metric("rollout/ep_rew_mean", -100.0 + k + seed + s / 100, 0, int(s)) for s in steps]
+            metrics += [Metric(key, float(v), 0, int(s)) for key in keys
+                        for s, v in zip(steps, reading(key, k, seed, steps / 1000))]
+            metrics += [Metric(key, 0.5, 0, 1000) for key in ("eval/success_rate", "eval/mse_x", "eval/mse_y",
+                                                              "eval/mse_z", "eval/return", "eval/crash_rate")]
+            client.log_batch(run_id, metrics=metrics, params=[Param(key, v) for key, v in params.items()])
+            client.set_terminated(run_id)
+
+
+def spy_figures(monkeypatch) -> dict:
+    """Stem -> what figures.save was given: per panel its y label, its curves (label -> y values) and texts; the
+    figure's own texts (the note below the legend) and the legend's labels."""
+    drawn, save = {}, figures.save
+
+    def spy(fig, out, stem):
+        axes = [ax for ax in fig.axes if ax.get_ylabel()]
+        drawn[stem] = {
+            "panels": [{"ylabel": ax.get_ylabel(), "texts": [t.get_text() for t in ax.texts],
+                        "curves": {line.get_label(): line.get_ydata() for line in ax.get_lines()
+                                   if not line.get_label().startswith("_")}} for ax in axes],
+            "note": " ".join(t.get_text() for t in fig.texts).replace("\n", " "),
+            "legend": [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]}
+        return save(fig, out, stem)
+
+    monkeypatch.setattr(figures, "save", spy)
+    return drawn
+
+
 def md_table(path: Path) -> pd.DataFrame:
     """The Markdown table of a report file, cells as text."""
     rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in path.read_text().splitlines()
@@ -248,7 +308,8 @@ def test_report_writes_every_file_and_says_what_is_missing(store, report):
     for stem in figure_stems(out):
         pixels = image.imread(out / f"{stem}.png")
         height, width = pixels.shape[:2]
-        assert 900 <= width <= 1200 and 500 <= height <= 2000, (stem, pixels.shape)  # 3.5 in at 300 dpi
+        tallest = 2600 if stem.startswith("dormant") else 2000  # the dormant figure: five readings, a note
+        assert 900 <= width <= 1200 and 500 <= height <= tallest, (stem, pixels.shape)  # 3.5 in at 300 dpi
         rgba = np.ascontiguousarray((pixels * 255).astype(np.uint8)).view(np.uint32)  # one number per pixel
         assert len(np.unique(rgba)) > 20, f"{stem}.png is blank"
         pdf = (out / f"{stem}.pdf").read_bytes()
@@ -454,6 +515,84 @@ def test_many_agents_keep_their_labels_and_distinct_looks(tmp_path, monkeypatch)
     tex = (tmp_path / "out" / "table3.tex").read_text()
     assert r"Shrink \& Perturb + PPO & paper &" in tex and r"Reset last layer (10\%) & paper &" in tex
     assert "older label" not in stdout + "".join(p.read_text() for p in (tmp_path / "out").glob("*.md"))
+
+
+def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatch):
+    """Every reading a run logged gets a panel named for it, with each agent's seed mean of that reading; a reading
+    no run of an agent logged has no curve of it; thresholds in labels and note are the ones the runs logged."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_reading_runs(MlflowClient(uri), "readings")
+    drawn = spy_figures(monkeypatch)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings")
+    assert code == 0, stdout + stderr
+    figure = drawn["dormant_paper"]
+    panels = figure["panels"]
+    assert len(panels) == len(READINGS) == 5  # no panel for the active share: for tanh, 100 - saturated
+    new = {"PPO": 0, "L2 + PPO": 1}
+    for panel, (key, words) in zip(panels, READINGS.items()):
+        assert words in panel["ylabel"], (key, panel["ylabel"])
+        old = key in ("plasticity/dormant_ratio", "plasticity/saturated_ratio")
+        assert sorted(panel["curves"]) == sorted([*new, "RECOM + L2 PPO"] if old else new), key
+        for label, k in new.items():  # the mean of the two seeds' lines, in %
+            expected = 100 * np.mean([reading(key, k, seed, np.linspace(0, 1, 200)) for seed in range(2)], axis=0)
+            assert panel["curves"][label] == pytest.approx(expected), (key, label)
+        assert ("0 throughout for every agent" in panel["texts"]) == (key == "plasticity/dormant_ratio"), key
+    assert figure["legend"] == ["PPO", "L2 + PPO", "RECOM + L2 PPO"]
+    note = figure["note"]
+    for words in ["Sokar dormant: units with E|h| ≤ τ", "Dead tanh: units with |h| > 0.95 on ≥ 90%",
+                  "Signed mean ≈ 0: units with |E h| ≤ 0.2", "not an idle unit", "Saturated: activations with |h| > 0.95"]:
+        assert words in note, (words, note)
+    assert image.imread(tmp_path / "out" / "dormant_paper.png").shape[1] <= 1200  # one column wide
+
+
+def test_summary_has_the_final_dead_tanh_and_signed_mean_shares(tmp_path):
+    """Final = mean over the last 10% of timesteps, then over seeds; '–' for an agent whose runs lack the key."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_reading_runs(MlflowClient(uri), "readings")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings")
+    assert code == 0, stdout + stderr
+    summary = pd.read_csv(tmp_path / "out" / "summary.csv").set_index("agent")
+    shown = md_table(tmp_path / "out" / "summary.md").set_index("Agent")
+    steps = np.arange(0, 1001, 100, dtype=float)
+    for agent, label, k in [("ppo", "PPO", 0), ("l2", "L2 + PPO", 1)]:
+        for key, column, title in [("plasticity/dead_tanh_ratio", "final_dead_tanh_ratio", "Final dead tanh (%)"),
+                                   ("plasticity/signed_mean_ratio", "final_signed_mean_ratio",
+                                    "Final signed-mean≈0 (%)")]:
+            by_hand = np.mean([final((steps, reading(key, k, seed, steps / 1000))) for seed in range(2)])
+            assert summary.loc[agent, column] == pytest.approx(by_hand), (agent, key)
+            assert shown.loc[label, title] == f"{100 * by_hand:.2f}", (agent, key)
+    # PPO's dead tanh share: 0.06 + 0.01 s + 0.15 t, final (t = 0.9, 1) 0.2025 + 0.01 s -> 20.75% over seeds 0, 1
+    assert shown.loc["PPO", "Final dead tanh (%)"] == "20.75"
+    assert np.isnan(summary.loc["recom_l2", "final_dead_tanh_ratio"])
+    assert np.isnan(summary.loc["recom_l2", "final_signed_mean_ratio"])
+    assert shown.loc["RECOM + L2 PPO", "Final dead tanh (%)"] == "–"
+    assert shown.loc["RECOM + L2 PPO", "Final signed-mean≈0 (%)"] == "–"
+    assert shown.loc["RECOM + L2 PPO", "Final saturated (%)"] != "–"  # the readings it logged are there
+
+
+def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monkeypatch):
+    """Runs logged before the readings existed (every other curve, flights): every figure and table is written,
+    the dormant figure has Sokar's ratio and the saturated share, the new summary columns say '–'."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_many_agents(MlflowClient(uri), "old", seeds=1, flights=tmp_path / "flights")
+    drawn = spy_figures(monkeypatch)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "old")
+    assert code == 0, stdout + stderr
+    out = tmp_path / "out"
+    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES}
+                                 | {"eval_flights_3d", "eval_position_axes"})
+    for name in TABLES:
+        assert (out / name).stat().st_size > 0, name
+    panels = drawn["dormant_paper"]["panels"]
+    assert [p["ylabel"] for p in panels] == ["Sokar dormant,\nτ = 0.025 (%)", "Saturated\nactivations (%)"]
+    assert all(len(p["curves"]) == len(MANY) for p in panels)
+    note = drawn["dormant_paper"]["note"]
+    assert "Sokar dormant" in note and "Saturated" in note and "Dead tanh" not in note and "Signed mean" not in note
+    shown = md_table(out / "summary.md")
+    assert (shown["Final dead tanh (%)"] == "–").all() and (shown["Final signed-mean≈0 (%)"] == "–").all()
+    assert (shown["Final saturated (%)"] != "–").all()
+    for key in NEW_READINGS:
+        assert key not in stdout  # keys older stores lack are not reported missing run by run
 
 
 def test_labels_fall_back_for_older_stores_never_collide_and_title_panels():

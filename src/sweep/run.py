@@ -93,6 +93,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     state = load_checkpoint(record.checkpoint) if previous else None
 
     wind = WindSchedule(speeds=list(cfg.wind.speeds), segment_steps=cfg.wind.segment_steps,
+                        after_list=cfg.wind.get("after_list", "repeat"),
                         direction=list(cfg.wind.direction), name=cfg.wind.name)
     env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed)

@@ -11,7 +11,10 @@ losses in the hundreds, ``absolute`` x R_gain = 5e-6 moves the LR by ~1e-3 per u
 bound (docs/calibration.md measures it); ``relative`` makes the step independent of the cost's scale
 (R_gain is then the LR change for a 100% cost change). ``recom/at_bound`` logs 1 when Eq. 8 clipped.
 
-R[t] is the return of a finished episode; L[t] the training loss paired with it: the mean total PPO
+R[t] is, with ``reward=return`` (default), the return of a finished episode (about -400 to -900 here); with
+``reward=per_step``, that episode's mean reward per step (about -1 to -2): Eq. 5 says "the mean of rewards
+and losses received by the last T episode", and both are natural readings. Under ``per_step`` the loss term
+weighs as much as the reward. L[t] is the training loss paired with the episode: the mean total PPO
 loss (pg + vf_coef*value + ent_coef*entropy, averaged over all minibatches and epochs) of the last
 update *before* the episode ended. Episodes that end before the first update have no loss and are
 not used. The update runs every ``interval`` timesteps, at the end of the rollout that reaches it.
@@ -41,6 +44,7 @@ def retrospective_cost(returns: np.ndarray, losses: np.ndarray) -> float:
 
 
 GRADIENTS = ("absolute", "relative")
+REWARDS = ("return", "per_step")
 
 
 def cost_gradient(cost: float, cost_prev: float, reading: str = "absolute") -> float:
@@ -69,10 +73,13 @@ class AdaptiveLR:
 class Recom(BaseCallback):
     def __init__(self, interval: int = 40960, window: int = 10, gain: float = 5e-6,
                  lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update",
-                 gradient: str = "absolute") -> None:
+                 gradient: str = "absolute", reward: str = "return") -> None:
         super().__init__()
         if gradient not in GRADIENTS:
             raise ValueError(f"agent.recom.gradient={gradient!r}; allowed: {list(GRADIENTS)}")
+        if reward not in REWARDS:
+            raise ValueError(f"agent.recom.reward={reward!r}; allowed: {list(REWARDS)}")
+        self.reward = reward
         self.interval, self.window, self.gain = int(interval), int(window), float(gain)
         self.lr_min, self.lr_max, self.previous, self.gradient = float(lr_min), float(lr_max), previous, gradient
         self.episodes: deque[tuple[float, float]] = deque(maxlen=self.window + 1)
@@ -110,7 +117,9 @@ class Recom(BaseCallback):
             return True
         for info in self.locals["infos"]:
             if "episode" in info:
-                self.episodes.append((float(info["episode"]["r"]), self.last_loss))
+                r = float(info["episode"]["r"])
+                self.episodes.append((r / max(int(info["episode"]["l"]), 1) if self.reward == "per_step" else r,
+                                      self.last_loss))
         return True
 
     def _on_rollout_end(self) -> None:

@@ -19,9 +19,10 @@ class Curve:
     """One panel of training curves: ``key`` (an MLflow metric, step = timesteps) times ``scale`` against
     timesteps. ``percent``: y from just below 0 (at least to 1, so an all-zero curve is not centred on 0; a panel
     where every value is 0 says so); ``ylim``: fixed y limits instead. ``sparse``: a metric logged at few steps
-    (evaluations), drawn on its logged steps with a marker at each; its figure is written only if some run logged it at >= 2 steps. ``ylabel`` and ``note`` (what
-    the panel's reading is, in a note below the figure's legend) may name the thresholds of the runs drawn,
-    ``{dormant_tau}``, ``{saturation}``, ``{dead_fraction}``, ``{signed_mean_tau}`` (see ``thresholds``)."""
+    (evaluations), drawn on its logged steps with a marker at each; its figure is written only if some run logged
+    it at >= 2 steps. ``ylabel`` and ``note`` (what the panel's reading is, in a note below the figure's legend)
+    may name the thresholds of the runs drawn, ``{dormant_tau}``, ``{saturation}``, ``{dead_fraction}``,
+    ``{signed_mean_tau}`` (see ``thresholds``)."""
     key: str
     ylabel: str
     scale: float = 1.0
@@ -205,8 +206,8 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
         top = max(1.0, ax.get_ylim()[1])
         ax.set_ylim(-0.03 * top, top)
         if seeds and (hist["value"] == 0).all():  # coinciding curves: say that every one of them is at 0
-            ax.text(0.5, 0.5, f"0 throughout for every {'condition' if conds.by else 'agent'}", transform=ax.transAxes,
-                    ha="center", va="center", color="0.3")
+            ax.text(0.5, 0.5, f"0 throughout for every {'condition' if conds.by else 'agent'}", ha="center",
+                    va="center", transform=ax.transAxes, color="0.3", bbox={"facecolor": "white", "edgecolor": "none"})
     if curve.ylim:
         ax.set_ylim(*curve.ylim)
     ax.grid(True)
