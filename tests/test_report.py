@@ -327,8 +327,9 @@ def test_report_writes_every_file_and_says_what_is_missing(store, report):
 def test_curve_figures_exist_exactly_when_their_data_exist(store, hand_report):
     tmp_path, stdout = hand_report
     assert figure_stems(tmp_path) == expected_curves(store, HAND) == {"reward_paper", "dormant_paper"}
-    # no saturated share logged: the dormant figure has a single panel
-    assert image.imread(tmp_path / "dormant_paper.png").shape[0] < 1.1 * image.imread(
+    # no saturated share logged: the dormant figure has a single panel (a second adds 1.4 in, 60% of this height;
+    # the note below its legend, two lines)
+    assert image.imread(tmp_path / "dormant_paper.png").shape[0] < 1.3 * image.imread(
         tmp_path / "reward_paper.png").shape[0]
     assert "missing: eval_trajectories.npz of ppo-s0" in stdout
 
@@ -540,7 +541,8 @@ def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatc
     assert figure["legend"] == ["PPO", "L2 + PPO", "RECOM + L2 PPO"]
     note = figure["note"]
     for words in ["Sokar dormant: units with E|h| ≤ τ", "Dead tanh: units with |h| > 0.95 on ≥ 90%",
-                  "Signed mean ≈ 0: units with |E h| ≤ 0.2", "not an idle unit", "Saturated: activations with |h| > 0.95"]:
+                  "Signed mean ≈ 0: units with |E h| ≤ 0.2", "not an idle unit",
+                  "Saturated: activations with |h| > 0.95"]:
         assert words in note, (words, note)
     assert image.imread(tmp_path / "out" / "dormant_paper.png").shape[1] <= 1200  # one column wide
 

@@ -1,11 +1,13 @@
 """CLI: build every figure and table of one experiment; errors are one line on stderr and exit code 1.
 
-Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (saturated units below),
-weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction), learning_rate_W, eval_success_W and
-eval_crash_W (only if runs evaluated during training, eval.every_timesteps > 0); eval_flights_3d and
-eval_position_axes. Tables: table3.{md,tex,csv} (evaluation under wind, with the best seed's numbers),
-summary.{md,csv} (training outcome per condition), segments.{md,csv} (training reward in each hold of the
-wind schedule).
+Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (the policy's readings, a panel
+each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean ≈ 0, saturated
+activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
+learning_rate_W, eval_success_W and eval_crash_W (only if runs evaluated during training,
+eval.every_timesteps > 0); eval_flights_3d and eval_position_axes (the final policy's flights; the best policy's
+where no run evaluated its final policy). Tables: table3.{md,tex,csv} (evaluation under wind of the final policy
+and of the best one kept during training, side by side, and the top seed's numbers), summary.{md,csv} (training
+outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule).
 """
 from __future__ import annotations
 
@@ -54,19 +56,22 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         for stem in figures.CURVES:
             written += figures.curve_figure(runs, histories, wind, stem, conds, out_dir)
 
-    wind, picked = figures.eval_runs(runs)
+    wind, picked, policy = figures.eval_runs(runs)
+    if policy != "final":
+        print(f"sweep.report: note: no run trained with wind {wind!r} evaluated its final policy (eval.policy=best): "
+              f"the flight figures show the {figures.POLICY_NAMES[policy]}")
     trajs = {}
     for cond, run in picked.iterrows():
-        t = load.load_trajectories(client, run["run_id"])
+        t = load.load_trajectories(client, run["run_id"], policy)
         if t is None:
-            print(f"sweep.report: missing: eval_trajectories.npz of {run['run_name']}")
+            print(f"sweep.report: missing: {load.trajectories_name(policy)} of {run['run_name']}")
         else:
             trajs[cond] = t
     if trajs:
         radius = float(picked["success_radius"].astype(float).iloc[0]) if picked["success_radius"].notna().any() \
             else np.nan
-        written += figures.flights_3d(trajs, picked, wind, conds, out_dir)
-        written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir)
+        written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
+        written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
     written += tables.write_tables(runs, histories, conds, out_dir, base)
     print(f"sweep.report: wrote {len(written)} files")

@@ -11,7 +11,7 @@ from matplotlib import pyplot as plt
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
-from sweep.report import stats, style
+from sweep.report import load, stats, style
 
 
 @dataclass(frozen=True)
@@ -214,11 +214,19 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
     return seeds
 
 
-def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame]:
-    """Per condition, the best-return seed among runs trained with wind 'paper' (else the first wind present)."""
+# How the flight figures name the policy they show (load.POLICIES keys).
+POLICY_NAMES = {"final": "final policy", "best": "best policy (highest training reward)"}
+
+
+def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame, str]:
+    """(wind, per condition the best-return seed among runs trained with wind 'paper' (else the first wind
+    present), the policy whose flights to draw): the final policy's (eval/return); the best policy's
+    (eval_best/return) only where no run of that wind evaluated its final policy (every run eval.policy=best)."""
     wind = "paper" if "paper" in set(runs["wind"]) else sorted(runs["wind"].unique())[0]
-    sub = runs[runs["wind"] == wind].sort_values("eval/return", ascending=False, na_position="last")
-    return wind, sub.drop_duplicates("condition").set_index("condition")
+    sub = runs[runs["wind"] == wind]
+    policy = "final" if sub["eval/return"].notna().any() or not sub["eval_best/return"].notna().any() else "best"
+    sub = sub.sort_values(f"{load.POLICIES[policy]}/return", ascending=False, na_position="last")
+    return wind, sub.drop_duplicates("condition").set_index("condition"), policy
 
 
 def _title(cond: str, conds, width: int) -> str:
@@ -229,7 +237,7 @@ def _title(cond: str, conds, width: int) -> str:
     return "\n".join([textwrap.fill(agent, width), *values])
 
 
-def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path) -> list[Path]:
+def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path, policy: str = "final") -> list[Path]:
     shown = [c for c in conds.order if c in trajs]
     cols = min(len(shown), 2)
     rows = int(np.ceil(len(shown) / cols))
@@ -266,7 +274,8 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path) -
                Line2D([], [], color="k", marker="*", linestyle="", markersize=6, label="target"),
                Line2D([], [], color="k", marker="x", linestyle="", markersize=4, label="crash")]
     title = (f"Evaluation wind {np.linalg.norm(wind_vec):g} m/s along {_direction(wind_vec)}\n"
-             f"agents trained with wind '{wind}'\nbest-return seed per {'condition' if conds.by else 'agent'}")
+             f"agents trained with wind '{wind}'\nbest-return seed per {'condition' if conds.by else 'agent'}, "
+             f"{POLICY_NAMES[policy]}")
     if spare:
         fig.legend(handles=handles, loc="center", ncol=1, frameon=False, title=title,
                    bbox_to_anchor=(0.75, 0.5 / rows))
@@ -286,7 +295,8 @@ def _direction(v: np.ndarray) -> str:
     return ("+" if v[axis] > 0 else "-") + "xyz"[axis] if np.count_nonzero(v) == 1 else str(np.round(v, 2))
 
 
-def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, conds, radius: float, out: Path) -> list[Path]:
+def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, conds, radius: float, out: Path,
+                  policy: str = "final") -> list[Path]:
     """x, y, z against time, a column per condition; at most POSITION_COLUMNS columns side by side, further
     conditions in blocks below (the same y scales throughout)."""
     shown = [c for c in conds.order if c in trajs]
@@ -324,5 +334,6 @@ def position_axes(trajs: dict, picked: pd.DataFrame, wind: str, conds, radius: f
         for axes in grids:
             axes[i, 0].set_ylim(min(lows), max(highs))
     note = f"\ngrey band: success radius ±{radius:g} m" if np.isfinite(radius) else ""
-    fig.suptitle(f"Evaluation flights, agents trained with wind '{wind}', best-return seed{note}", fontsize=7)
+    fig.suptitle(f"Evaluation flights, agents trained with wind '{wind}',\nbest-return seed, {POLICY_NAMES[policy]}"
+                 f"{note}", fontsize=7)
     return save(fig, out, "eval_position_axes")

@@ -1,9 +1,11 @@
 """Read one experiment of the MLflow store back into pandas (the only module that reads the store).
 
 * ``runs``: one row per FINISHED run: run_id, agent, its legend label, wind, seed, sweep, the wind schedule and
-  eval params, the final ``eval/*`` metrics, the names of its metrics (``logged``) and one column per ``--by`` param.
+  eval params, the end-of-run evaluations (EVAL_KEYS: the final policy's ``eval/*``, the best kept policies'
+  ``eval_best/*`` and ``eval_best_eval/*``; NaN where the run did not evaluate that policy), the names of its
+  metrics (``logged``) and one column per ``--by`` param.
 * ``histories``: long table (run_id, key, step, value) of the metric histories the report plots.
-* ``trajectories``: the ``eval_trajectories.npz`` artifact of one run.
+* ``trajectories``: the ``eval_trajectories.npz`` artifact of one run (or a best policy's, ``eval_best_…``).
 """
 from __future__ import annotations
 
@@ -21,8 +23,16 @@ os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 from mlflow.exceptions import MlflowException  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
-EVAL_KEYS = ["eval/success_rate", "eval/mse_x", "eval/mse_y", "eval/mse_z", "eval/final_distance",
-             "eval/return", "eval/crash_rate"]
+EVAL_FIELDS = ["success_rate", "mse_x", "mse_y", "mse_z", "final_distance", "return", "crash_rate"]
+# The policies a run evaluates at its final step (eval.policy final|best|both; sweep.best_policy.PREFIXES): the
+# final one under eval/*, the one kept at the highest rollout/ep_rew_mean under eval_best/* (the paper's "policy
+# that produced the highest reward") and the one kept at the highest in-training eval return under
+# eval_best_eval/*, the best two with the timestep they were kept at and their score. Stores logged before
+# eval.policy existed have eval/* only.
+POLICIES = {"final": "eval", "best": "eval_best", "best_eval": "eval_best_eval"}
+SOURCE_FIELDS = ["source_step", "source_score"]
+EVAL_KEYS = ([f"eval/{f}" for f in EVAL_FIELDS]
+             + [f"{prefix}/{f}" for prefix in ("eval_best", "eval_best_eval") for f in EVAL_FIELDS + SOURCE_FIELDS])
 CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate", "rollout/ep_len_mean",
               "plasticity/weight_norm", "plasticity/saturated_ratio"]  # every run logs these
 OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate",  # only RECOM / eval during training
@@ -35,6 +45,7 @@ NA = "n/a"  # value of a --by param that does not apply to a run (or that the ru
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius",
+              "eval.policy": "eval_policy",  # None in stores logged before it existed (final policy only)
               # the thresholds of the plasticity readings, for the dormant figure's labels (None where not logged)
               "plasticity.tau": "dormant_tau", "plasticity.saturation": "saturation",
               "plasticity.dead_fraction": "dead_fraction", "plasticity.signed_mean_tau": "signed_mean_tau"}
@@ -73,6 +84,13 @@ def agent_label(agent: str, tags: dict[str, str], params: dict[str, str]) -> str
     """The run's legend label: its tag ``agent_label``, else its param ``agent.label`` (the agent's YAML
     ``label:``), else (older stores) OLD_LABELS, else the agent's name."""
     return tags.get("agent_label") or params.get("agent.label") or OLD_LABELS.get(agent, agent)
+
+
+def final_evaluated(params: dict[str, str]) -> bool:
+    """Whether the run evaluated its final policy at the end (eval.policy final or both; stores logged before
+    eval.policy existed always did). With eval.policy=best the latest ``eval/*`` value, if any, comes from an
+    evaluation during training (eval.every_timesteps), of an earlier policy."""
+    return params.get("eval.policy", "final") in ("final", "both")
 
 
 def tracking_uri() -> str:
@@ -147,6 +165,8 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
                "start_time": run.info.start_time}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
         row.update({key: metrics.get(key, np.nan) for key in EVAL_KEYS})
+        if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's
+            row.update({f"eval/{f}": np.nan for f in EVAL_FIELDS})
         row.update({key: by_value(params, key) for key in by})
         row["logged"] = frozenset(metrics)
         rows.append(row)
@@ -182,11 +202,18 @@ def load_histories(client: MlflowClient, runs: pd.DataFrame, keys=CURVE_KEYS + O
     return df.drop_duplicates(["run_id", "key", "step"], keep="last").drop(columns="ts").reset_index(drop=True)
 
 
-def load_trajectories(client: MlflowClient, run_id: str) -> dict[str, np.ndarray] | None:
-    """The run's ``eval_trajectories.npz`` as a dict of arrays, or None if the run has none."""
+def trajectories_name(policy: str = "final") -> str:
+    """The artifact holding the evaluation flights of ``policy`` (a POLICIES key): eval_trajectories.npz,
+    eval_best_trajectories.npz, eval_best_eval_trajectories.npz."""
+    return f"eval{POLICIES[policy].removeprefix('eval')}_trajectories.npz"
+
+
+def load_trajectories(client: MlflowClient, run_id: str, policy: str = "final") -> dict[str, np.ndarray] | None:
+    """The run's evaluation flights of ``policy`` (``trajectories_name``) as a dict of arrays, or None if the run
+    has none."""
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            path = client.download_artifacts(run_id, "eval_trajectories.npz", tmp)
+            path = client.download_artifacts(run_id, trajectories_name(policy), tmp)
         except (MlflowException, OSError):
             return None
         with np.load(path) as npz:

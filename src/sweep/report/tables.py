@@ -7,13 +7,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sweep.report import stats
+from sweep.report import load, stats
 from sweep.report.conditions import Conditions, baseline_of
 
-TABLE3 = [("eval/success_rate", "success_rate", 100.0, "Success rate (%)"),
-          ("eval/mse_x", "mse_x", 1.0, "MSE x (m²)"),
-          ("eval/mse_y", "mse_y", 1.0, "MSE y (m²)"),
-          ("eval/mse_z", "mse_z", 1.0, "MSE z (m²)")]
+# Table III's metrics: (field of the eval/* keys, scale, column title before the policy, unit, digits shown).
+TABLE3 = [("success_rate", 100.0, "Success", "(%)", 0),
+          ("mse_x", 1.0, "MSE x", "(m²)", 2),
+          ("mse_y", 1.0, "MSE y", "(m²)", 2),
+          ("mse_z", 1.0, "MSE z", "(m²)", 2)]
+# The policies scored at the end of a run (load.POLICIES) -> the suffix of their CSV columns. The tables show
+# "final" and "best" side by side; "best_eval" (kept at the highest in-training eval return) is in the CSVs only.
+SUFFIX = {"final": "", "best": "_best", "best_eval": "_best_eval"}
+SHOWN = ("final", "best")
 
 
 def _pm(mean: float, half: float, digits: int) -> str:
@@ -66,34 +71,71 @@ def _identity(conds: Conditions, cond: str, wind: str) -> dict:
             "wind": wind}
 
 
-def best_seed(g: pd.DataFrame) -> pd.Series | None:
+def top_seed(g: pd.DataFrame) -> pd.Series | None:
     """The run with the highest final training reward (lowest seed on a tie); None if no run has one."""
     ranked = g[np.isfinite(g["final_reward"])].sort_values(["final_reward", "seed"], ascending=[False, True])
     return ranked.iloc[0] if len(ranked) else None
 
 
+def _key(policy: str, field: str) -> str:
+    """The runs' column of ``field`` (e.g. success_rate) as ``policy`` was scored: eval/…, eval_best/…"""
+    return f"{load.POLICIES[policy]}/{field}"
+
+
+def _cell(mean: float, half: float, n: int, seeds: int, digits: int) -> str:
+    """mean ± half, '(n=k)' appended where only k of the condition's seeds evaluated that policy; '–' for none."""
+    text = _pm(mean, half, digits)
+    return text + (f" (n={n})" if 0 < n < seeds else "")
+
+
+def _round_steps(n: float) -> str:
+    """Timesteps to three significant digits: 598k, 2.05k, 1.5M; '–' for NaN."""
+    if not np.isfinite(n):
+        return "–"
+    return f"{n / 1e6:.3g}M" if n >= 999_500 else f"{n / 1e3:.3g}k" if n >= 1000 else f"{n:.0f}"
+
+
+def source_step(g: pd.DataFrame, policy: str = "best") -> tuple[float, str]:
+    """(mean over seeds of the timestep the kept ``policy`` came from, that mean as text, '(n=k)' as in _cell)."""
+    steps = g[_key(policy, "source_step")].to_numpy(dtype=float)
+    steps = steps[np.isfinite(steps)]
+    mean = float(steps.mean()) if len(steps) else np.nan
+    return mean, _round_steps(mean) + (f" (n={len(steps)})" if 0 < len(steps) < len(g) else "")
+
+
 def table3(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(numbers: one row per condition x wind with mean / ci95 / n per metric and the best seed's values,
-    display table)."""
+    """(numbers: one row per condition x wind with, per policy scored at the end (final, best, best_eval: SUFFIX),
+    mean / ci95 / number of seeds per metric, the mean source step and score of the kept ones, and the top seed's
+    final-policy values; display table: final and best side by side)."""
     df = runs.merge(per_run[["run_id", "final_reward"]], on="run_id", how="left")
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
         num = {**_identity(conds, cond, wind), "n_seeds": len(g)}
-        shown = {"Control policy": cond, "Training wind": wind}
-        for key, short, scale, title in TABLE3:
-            mean, half, _ = stats.mean_t_ci(g[key] * scale)
-            num[f"{short}_mean"], num[f"{short}_ci95"] = mean, half
-            shown[title] = _pm(mean, half, 0 if short == "success_rate" else 2)
-        shown["Seeds"] = len(g)
-        best = best_seed(g)
-        num["best_seed"] = int(best["seed"]) if best is not None else np.nan
-        num["best_final_reward"] = best["final_reward"] if best is not None else np.nan
-        for key, short, scale, _ in TABLE3:
-            num[f"best_{short}"] = best[key] * scale if best is not None else np.nan
-        shown["Best seed"] = num["best_seed"] if best is not None else "–"
-        shown["Best: success (%)"] = _pm(num["best_success_rate"], np.nan, 0)
-        shown["Best: MSE x/y/z (m²)"] = ("–" if best is None else
-                                         " / ".join(f"{num[f'best_mse_{a}']:.2f}" for a in "xyz"))
+        shown = {"Control policy": cond, "Training wind": wind, "Seeds": len(g)}
+        for policy, suffix in SUFFIX.items():
+            for field, scale, _, _, _ in TABLE3:
+                mean, half, n = stats.mean_t_ci(g[_key(policy, field)] * scale)
+                num[f"{field}{suffix}_mean"], num[f"{field}{suffix}_ci95"] = mean, half
+            num[f"n_seeds{suffix or '_final'}"] = int(g[_key(policy, "success_rate")].notna().sum())
+        for policy in ("best", "best_eval"):
+            for field in load.SOURCE_FIELDS:
+                num[f"{field}{SUFFIX[policy]}_mean"] = float(g[_key(policy, field)].mean())
+        for field, scale, title, unit, digits in TABLE3:
+            for policy in SHOWN:
+                suffix = SUFFIX[policy]
+                shown[f"{title} {policy} {unit}"] = _cell(num[f"{field}{suffix}_mean"], num[f"{field}{suffix}_ci95"],
+                                                          num[f"n_seeds{suffix or '_final'}"], len(g), digits)
+        shown["Best taken at (step)"] = source_step(g)[1]
+        top = top_seed(g)
+        num["top_seed"] = int(top["seed"]) if top is not None else np.nan
+        num["top_seed_final_reward"] = top["final_reward"] if top is not None else np.nan
+        for field, scale, _, _, _ in TABLE3:
+            num[f"top_seed_{field}"] = top[_key("final", field)] * scale if top is not None else np.nan
+        shown["Top seed"] = num["top_seed"] if top is not None else "–"
+        shown["Top seed: success final (%)"] = _pm(num["top_seed_success_rate"], np.nan, 0)
+        shown["Top seed: MSE x/y/z final (m²)"] = (
+            "–" if top is None or not np.isfinite(num["top_seed_mse_x"])
+            else " / ".join(f"{num[f'top_seed_mse_{a}']:.2f}" for a in "xyz"))
         numbers.append(num)
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
@@ -103,8 +145,10 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
             baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per condition x wind: seeds, final reward / dormant / saturated / dead tanh / signed-mean≈0 share / weight
     norm (the mean over the seeds that logged it; NaN, shown '–', where none did), collapse, share of
-    RECOM's LR updates at a bound, final evaluation success and crashes, IQM [CI], P(improve over PPO) [CI], and
-    with ``baseline`` = (KEY, VALUE) the IQM difference to the baseline condition [CI]."""
+    RECOM's LR updates at a bound, the end-of-run evaluations' success and crash rates of the final policy and of
+    the best ones (the CSV: eval[_best|_best_eval]_{success,crash}_pct, with the mean step each best came from;
+    shown: final and best), IQM [CI], P(improve over PPO) [CI], and with ``baseline`` = (KEY, VALUE) the IQM
+    difference to the baseline condition [CI]."""
     df = runs.merge(per_run, on="run_id", how="left")
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
@@ -120,8 +164,10 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                "final_dead_tanh_ratio": g["final_dead_tanh"].mean(),
                "final_signed_mean_ratio": g["final_signed_mean"].mean(),
                "collapse": g["collapse"].mean(), "lr_at_bound_pct": 100 * g["at_bound"].mean(),
-               "eval_success_pct": 100 * g["eval/success_rate"].mean(),
-               "eval_crash_pct": 100 * g["eval/crash_rate"].mean(),
+               **{f"eval{SUFFIX[p]}_{what}_pct": 100 * g[_key(p, f"{what}_rate")].mean()
+                  for p in SUFFIX for what in ("success", "crash")},
+               "eval_best_source_step": source_step(g, "best")[0],
+               "eval_best_eval_source_step": source_step(g, "best_eval")[0],
                "iqm_final_reward": iqm, "iqm_ci_low": iqm_lo, "iqm_ci_high": iqm_hi,
                "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1], "p_improve_ci_high": poi[2]}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
@@ -133,8 +179,10 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                  "Final weight norm": _fixed(num["final_weight_norm"], 1),
                  "Collapse": f"{num['collapse']:.1f}",
                  "LR at bound (%)": _fixed(num["lr_at_bound_pct"], 0),
-                 "Eval success (%)": _fixed(num["eval_success_pct"], 0),
-                 "Eval crash (%)": _fixed(num["eval_crash_pct"], 0),
+                 **{f"Eval {what} {p} (%)": _cell(num[f"eval{SUFFIX[p]}_{what}_pct"], np.nan,
+                                                   int(g[_key(p, f"{what}_rate")].notna().sum()), len(g), 0)
+                    for what in ("success", "crash") for p in SHOWN},
+                 "Best taken at (step)": source_step(g, "best")[1],
                  "IQM final reward [95% CI]": _interval(iqm, iqm_lo, iqm_hi, 1),
                  "P(> PPO) [95% CI]": _interval(*poi, 2)}
         if baseline is not None:
@@ -178,15 +226,25 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     per_run = stats.per_run_curve_stats(histories)
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
-    best = ("Best = the seed whose final training reward (mean episode reward over the last "
-            f"{stats.FINAL_FRACTION:.0%} of timesteps) is highest in its condition, as the paper evaluated "
-            "\"the policy that produced the highest reward\"; its success rate and per-axis MSE.")
+    policies = ("final = the policy at the end of training (eval/*); best = the policy kept during training at its "
+                "highest mean training episode reward (rollout/ep_rew_mean at a rollout end, eval_best/*), the "
+                "paper's \"policy that produced the highest reward\"; both evaluated at the end of the run")
+    missing = ("– = not evaluated: runs logged before eval.policy existed or with eval.policy=final have no best "
+               "policy's evaluation, runs with eval.policy=best no final policy's; (n=k) = only k of the seeds "
+               "evaluated that policy")
     (out / "table3.md").write_text(
-        f"Evaluation under constant wind (Table III): mean ± 95% Student-t CI over seeds. {best}\n\n"
+        "Evaluation under constant wind (Table III, wind eval.wind_speed): success rate and per-axis position MSE, "
+        f"mean ± 95% Student-t CI over seeds, of two policies of each run: {policies}. Best taken at = the "
+        f"timestep the best policy was kept at (mean over seeds). {missing}. Top seed = the seed whose final "
+        f"training reward (mean episode reward over the last {stats.FINAL_FRACTION:.0%} of timesteps) is highest "
+        "in its condition; its final policy's success rate and per-axis MSE. table3.csv also has the policy kept "
+        "at the highest in-training evaluation return (*_best_eval_*, eval_best_eval/*).\n\n"
         + markdown(t3_display))
-    (out / "table3.tex").write_text(latex(t3_display, "Evaluation under wind: success rate and per-axis position "
-                                          "MSE, mean $\\pm$ 95\\% CI over seeds, and the values of the seed "
-                                          "with the highest final training reward.", "tab:eval"))
+    (out / "table3.tex").write_text(latex(
+        t3_display, "Evaluation under wind: success rate and per-axis position MSE, mean $\\pm$ 95\\% CI over seeds, "
+        "of the final policy (final) and of the policy kept at the highest training reward (best), the timestep "
+        "the best was kept at (mean over seeds), and the final policy's values of the seed with the highest final "
+        "training reward (top seed). -- = not evaluated.", "tab:eval"))
     s_numbers, s_display = summary(runs, per_run, conds, baseline)
     s_numbers.to_csv(out / "summary.csv", index=False)
     note = (f"Final = mean over the last {stats.FINAL_FRACTION:.0%} of training timesteps (mean over seeds); "
@@ -198,7 +256,9 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             "times the layer's mean E|h| (a unit swinging between ±1 counts: not an idle unit; – where the runs "
             "predate these two readings); weight norm = L2 norm of all policy and value "
             "parameters; LR at bound = share of RECOM's learning-rate updates clipped to lr_min or lr_max "
-            "(– without RECOM); eval success / crash = the final evaluation's rates; IQM with 95% "
+            "(– without RECOM); eval success / crash = the success and crash rates of the evaluation at the end of "
+            f"the run, mean over seeds, of two policies: {policies}; best taken at = the timestep the best policy "
+            f"was kept at (mean over seeds); {missing}; IQM with 95% "
             "stratified-bootstrap CI (rliable); P(> PPO) = rliable probability of improvement of the final reward "
             "over PPO in the same wind condition.")
     if baseline is not None:
@@ -219,7 +279,8 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
                               "segments.csv", "segments.md", "brief.txt")]
 
 
-BRIEF = ("Agent", "Wind", "Seeds", "Eval success (%)", "Eval crash (%)", "Final reward")
+BRIEF = ("Agent", "Wind", "Seeds", "Eval success final (%)", "Eval success best (%)", "Eval crash final (%)",
+         "Final reward")
 
 
 def brief(display: pd.DataFrame) -> str:
