@@ -17,6 +17,7 @@ from matplotlib import image
 from matplotlib.colors import to_hex
 from mlflow.entities import Metric, Param
 from mlflow.tracking import MlflowClient
+from scipy.stats import t as t_dist
 from scipy.stats import trim_mean
 
 from sweep.report import conditions, figures, load, stats, style, tables
@@ -38,6 +39,7 @@ CURVE_METRICS = {"reward": "rollout/ep_rew_mean", "episode_length": "rollout/ep_
                  "learning_rate": "train/learning_rate", "eval_success": "eval/success_rate",
                  "eval_crash": "eval/crash_rate", "ppo_update": "train/std"}
 SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
+ARTIFACTS = {"final": "eval_trajectories.npz", "best": "eval_best_trajectories.npz"}  # the flights (sweep.run)
 TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv", "segments.md", "segments.csv"]
 
 
@@ -110,7 +112,7 @@ def hand_runs(store: str, experiment: str = EXPERIMENT, by_coef: bool = True) ->
         row = {"run_id": r.info.run_id, "agent": agent, "seed": int(r.data.tags["seed"]),
                "start": r.info.start_time,
                "condition": r.data.tags["agent_label"] + (f" (coef={coef})" if coef else ""),
-               **{k: v for k, v in r.data.metrics.items() if k.startswith("eval/")}}
+               **{k: v for k, v in r.data.metrics.items() if k.split("/")[0] in ("eval", "eval_best")}}
         for name, key in [("reward", "rollout/ep_rew_mean"), ("dormant", "plasticity/dormant_ratio"),
                           ("at_bound", "recom/at_bound")]:
             hist = sorted(client.get_metric_history(r.info.run_id, key), key=lambda m: m.step)
@@ -169,9 +171,13 @@ MANY = {"alpha_redo": "ReDo (τ=0.1) + PPO", "beta_snp": "Shrink & Perturb + PPO
         "zeta_plain": "zeta_plain"}
 
 
-def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, flights: Path | None = None) -> None:
+def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, flights: Path | None = None,
+                    policy: str = "final") -> None:
     """Experiment ``experiment``: every MANY agent x ``seeds`` seeds in wind 'paper', reward, episode length and
-    dormant histories (all curves if ``flights``, a folder for evaluation-flight artifacts, is given)."""
+    dormant histories (all curves if ``flights``, a folder for evaluation-flight artifacts, is given). The
+    evaluation at the end scores the final policy (eval/*, eval_trajectories.npz, no eval.policy param: a store
+    logged before it existed) or, with ``policy="best"``, only the best one (eval.policy=best: eval_best/*,
+    eval_best_trajectories.npz; eval/* are then the evaluations during training only)."""
     exp_id = client.create_experiment(experiment, None if flights is None else (flights / "artifacts").as_uri())
     steps = np.arange(0, 20_001, 500)
     rng = np.random.default_rng(0)
@@ -181,6 +187,8 @@ def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, fligh
                     "sweep": "many"}
             logged = "older label" if agent == "kappa_sp" and seed == 0 else label
             params = {"wind.speeds": "[3.0, 2.0, 2.5]", "wind.segment_steps": "5000", "eval.success_radius": "0.5"}
+            if policy != "final":
+                params["eval.policy"] = policy
             if agent not in ("delta_cbp", "zeta_plain"):
                 tags["agent_label"] = logged
             if agent != "zeta_plain":
@@ -198,15 +206,18 @@ def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, fligh
             metrics += [Metric(key, v, 0, int(s)) for s in steps[::10] for key, v in
                         [("eval/success_rate", min(1.0, s / 20_000 * (0.3 + k / 20))),
                          ("eval/crash_rate", max(0.0, 0.5 - s / 40_000 - k / 40))]]
-            metrics += [Metric(key, v, 0, 20_000) for key, v in
-                        [("eval/mse_x", 0.1 * (k + 1) + seed), ("eval/mse_y", 0.2), ("eval/mse_z", 0.3),
-                         ("eval/return", -100.0 * k - seed)]]
+            end = "eval" if policy == "final" else "eval_best"
+            metrics += [Metric(f"{end}/{key}", v, 1, 20_000) for key, v in
+                        [("mse_x", 0.1 * (k + 1) + seed), ("mse_y", 0.2), ("mse_z", 0.3), ("return", -100.0 * k - seed)]
+                        + ([] if policy == "final" else [("success_rate", 0.05 * k), ("crash_rate", 0.0),
+                                                         ("source_step", 10_000.0 + 500 * seed),
+                                                         ("source_score", -300.0)])]
             client.log_batch(run_id, metrics=metrics, params=[Param(key, v) for key, v in params.items()])
             if flights is not None:
                 time = np.linspace(0, 5, 101)[None, :, None]
                 start = rng.uniform(-2, 2, (4, 1, 3))
                 positions = start * np.exp(-(0.5 + k / 8) * time) + 0.05 * k * np.sin(3 * time)
-                path = flights / f"{agent}-{seed}" / "eval_trajectories.npz"
+                path = flights / f"{agent}-{seed}" / ARTIFACTS[policy]
                 path.parent.mkdir(parents=True)
                 np.savez_compressed(path, positions=positions, crashed=np.arange(4) < k % 3,
                                     success=np.arange(4) >= k % 3, dt=np.array(0.05), wind=np.array([2.0, 0, 0]))
@@ -349,27 +360,33 @@ def test_by_splits_conditions_by_the_logged_params(store, report):
     assert list(table3["condition"]) == list(summary["condition"])
 
 
-def test_table3_equals_a_hand_aggregation_with_the_best_seed(store, report):
+def test_table3_equals_a_hand_aggregation_with_the_top_seed(store, report):
     out, _ = report
     hand = hand_runs(store)
     table = pd.read_csv(out / "table3.csv").set_index("condition")
-    assert "Best = the seed whose final training reward" in (out / "table3.md").read_text()
+    assert "Top seed = the seed whose final training reward" in (out / "table3.md").read_text()
     shown = md_table(out / "table3.md").set_index("Control policy")
     for cond, g in hand.groupby("condition"):
         row = table.loc[cond]
-        assert row["n_seeds"] == len(g) == 2
-        assert row["success_rate_mean"] == pytest.approx(100 * g["eval/success_rate"].mean())
+        assert row["n_seeds"] == row["n_seeds_final"] == row["n_seeds_best"] == len(g) == 2
+        # the real runs (eval.policy=both) scored the final and the best policy: both, side by side
+        for prefix, suffix in [("eval", ""), ("eval_best", "_best")]:
+            assert row[f"success_rate{suffix}_mean"] == pytest.approx(100 * g[f"{prefix}/success_rate"].mean())
+            for axis in "xyz":
+                assert row[f"mse_{axis}{suffix}_mean"] == pytest.approx(g[f"{prefix}/mse_{axis}"].mean())
+            assert np.isfinite(row[f"mse_x{suffix}_ci95"])  # two seeds: a Student-t interval exists
+        assert row["source_step_best_mean"] == pytest.approx(g["eval_best/source_step"].mean())
+        assert 0 < row["source_step_best_mean"] <= 1536
+        top = g.loc[g["reward"].map(final).idxmax()]
+        assert row["top_seed"] == top["seed"]
+        assert row["top_seed_success_rate"] == pytest.approx(100 * top["eval/success_rate"])
         for axis in "xyz":
-            assert row[f"mse_{axis}_mean"] == pytest.approx(g[f"eval/mse_{axis}"].mean())
-        assert np.isfinite(row["mse_x_ci95"])  # two seeds: a Student-t interval exists
-        best = g.loc[g["reward"].map(final).idxmax()]
-        assert row["best_seed"] == best["seed"]
-        assert row["best_success_rate"] == pytest.approx(100 * best["eval/success_rate"])
-        for axis in "xyz":
-            assert row[f"best_mse_{axis}"] == pytest.approx(best[f"eval/mse_{axis}"])
-        assert shown.loc[cond, "Best seed"] == str(best["seed"])
-        assert shown.loc[cond, "Best: success (%)"] == f"{100 * best['eval/success_rate']:.0f}"
-        assert shown.loc[cond, "Best: MSE x/y/z (m²)"] == " / ".join(f"{best[f'eval/mse_{a}']:.2f}" for a in "xyz")
+            assert row[f"top_seed_mse_{axis}"] == pytest.approx(top[f"eval/mse_{axis}"])
+        assert shown.loc[cond, "Top seed"] == str(top["seed"])
+        assert shown.loc[cond, "Top seed: success final (%)"] == f"{100 * top['eval/success_rate']:.0f}"
+        assert shown.loc[cond, "Top seed: MSE x/y/z final (m²)"] == " / ".join(
+            f"{top[f'eval/mse_{a}']:.2f}" for a in "xyz")
+        assert shown.loc[cond, "MSE y best (m²)"] == f"{row['mse_y_best_mean']:.2f} ± {row['mse_y_best_ci95']:.2f}"
 
 
 def test_summary_equals_a_hand_computation_from_the_histories(store, report):
@@ -383,6 +400,8 @@ def test_summary_equals_a_hand_computation_from_the_histories(store, report):
         assert row["final_reward"] == pytest.approx(g["reward"].map(final).mean())
         assert row["eval_success_pct"] == pytest.approx(100 * g["eval/success_rate"].mean())
         assert row["eval_crash_pct"] == pytest.approx(100 * g["eval/crash_rate"].mean())
+        assert row["eval_best_success_pct"] == pytest.approx(100 * g["eval_best/success_rate"].mean())
+        assert row["eval_best_crash_pct"] == pytest.approx(100 * g["eval_best/crash_rate"].mean())
         assert row["iqm_ci_low"] <= row["iqm_final_reward"] <= row["iqm_ci_high"]
         shares = [v.mean() for _, v in g["at_bound"] if len(v)]
         if g["agent"].iloc[0] == "recom_l2":
@@ -446,9 +465,9 @@ def test_baseline_is_the_iqm_difference_to_the_matching_condition(store, report)
 def test_hand_logged_runs_give_the_chosen_best_seed_and_bound_share(hand_report):
     tmp_path, _ = hand_report
     table = pd.read_csv(tmp_path / "table3.csv").set_index("agent")
-    assert table.loc["recom_l2", "best_seed"] == 1  # not 0 (highest last reward) nor 2 (best evaluation return)
-    assert table.loc["recom_l2", "best_mse_x"] == 2.0 and table.loc["recom_l2", "best_success_rate"] == 10.0
-    assert table.loc["ppo", "best_seed"] == 0  # final rewards -41 (seed 0) and -46.25 (seed 1)
+    assert table.loc["recom_l2", "top_seed"] == 1  # not 0 (highest last reward) nor 2 (best evaluation return)
+    assert table.loc["recom_l2", "top_seed_mse_x"] == 2.0 and table.loc["recom_l2", "top_seed_success_rate"] == 10.0
+    assert table.loc["ppo", "top_seed"] == 0  # final rewards -41 (seed 0) and -46.25 (seed 1)
     summary = pd.read_csv(tmp_path / "summary.csv").set_index("agent")
     # RECOM's updates at a bound: 2 of 4, 1 of 4, 0 of 2 -> 50%, 25%, 0% -> 25% (pooled: 30%, last value: 67%)
     assert summary.loc["recom_l2", "lr_at_bound_pct"] == pytest.approx(25.0)
@@ -458,6 +477,200 @@ def test_hand_logged_runs_give_the_chosen_best_seed_and_bound_share(hand_report)
     assert summary.loc["recom_l2", "final_reward"] == pytest.approx(np.mean([-22.5, -15.0, -30.0]))
     assert summary.loc["recom_l2", "final_dormant_ratio"] == pytest.approx(0.01)
     assert np.isnan(summary.loc["recom_l2", "final_saturated_ratio"])
+
+
+# Hand-logged end-of-run evaluations, per agent the values of seeds 0, 1, 2 (None: that seed did not score that
+# policy). PPO: eval.policy=both for seeds 0 and 1, final for seed 2 (no best: the best columns are over 2 seeds);
+# L2: a store logged before eval.policy existed (final only); RECOM: eval.policy=best, whose eval/* are
+# evaluations during training only (seed 0's last one at the final step, 1000), never the final policy's.
+POLICY_RUNS = {
+    "ppo": {"policy": ["both", "both", "final"],
+            "eval": {"success_rate": [0.2, 0.4, 0.9], "mse_x": [0.5, 0.7, 0.3], "mse_y": [1.0, 1.2, 1.4],
+                     "mse_z": [0.1, 0.3, 0.2], "crash_rate": [0.1, 0.0, 0.3], "return": [-300.0, -250.0, -200.0]},
+            "eval_best": {"success_rate": [0.8, 0.5, None], "mse_x": [0.05, 0.15, None], "mse_y": [0.2, 0.4, None],
+                          "mse_z": [0.3, 0.9, None], "crash_rate": [0.0, 0.2, None], "return": [-90.0, -120.0, None],
+                          "source_step": [300.0, 600.0, None], "source_score": [-10.0, -20.0, None]},
+            "eval_best_eval": {"success_rate": [0.6, 0.7, None], "mse_x": [0.4, 0.4, None],
+                               "mse_y": [0.4, 0.4, None], "mse_z": [0.4, 0.4, None], "crash_rate": [0.1, 0.3, None],
+                               "return": [-150.0, -140.0, None], "source_step": [500.0, 500.0, None],
+                               "source_score": [-150.0, -140.0, None]}},
+    "l2": {"policy": [None, None],
+           "eval": {"success_rate": [0.3, 0.1], "mse_x": [0.9, 1.1], "mse_y": [0.8, 0.6], "mse_z": [0.5, 0.7],
+                    "crash_rate": [0.4, 0.6], "return": [-400.0, -500.0]}},
+    "recom_l2": {"policy": ["best", "best"],
+                 "eval_best": {"success_rate": [1.0, 0.6], "mse_x": [0.02, 0.06], "mse_y": [0.03, 0.05],
+                               "mse_z": [0.04, 0.08], "crash_rate": [0.0, 0.1], "return": [-80.0, -95.0],
+                               "source_step": [900.0, 700.0], "source_score": [-5.0, -7.0]}}}
+
+
+def log_policy_runs(client: MlflowClient, experiment: str) -> None:
+    """Experiment ``experiment``: POLICY_RUNS in wind 'paper', a reward history each (the higher the seed, the
+    higher), evaluations during training at step 500 (every eval/* key 0.05: never a final value) and, for RECOM
+    seed 0, 1000; the end-of-run evaluations at step 1000."""
+    exp_id = client.create_experiment(experiment)
+    steps = np.arange(0, 1001, 100)
+    for agent, spec in POLICY_RUNS.items():
+        for seed, policy in enumerate(spec["policy"]):
+            run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                     "run_name": f"{agent}-s{seed}", "sweep": "policies"}).info.run_id
+            params = {"wind.speeds": "[3.0]", "wind.segment_steps": "100000", "eval.wind_speed": "3.0"}
+            if policy is not None:
+                params["eval.policy"] = policy
+            metrics = [Metric("rollout/ep_rew_mean", -100.0 + 10 * seed + s / 100, 0, int(s)) for s in steps]
+            metrics += [Metric("plasticity/dormant_ratio", 0.0, 0, int(s)) for s in steps]
+            during = [500] + ([1000] if agent == "recom_l2" and seed == 0 else [])
+            metrics += [Metric(f"eval/{key}", 0.05, 0, step) for step in during
+                        for key in ("success_rate", "mse_x", "mse_y", "mse_z", "crash_rate", "return")]
+            metrics += [Metric(f"{prefix}/{key}", values[seed], 1, 1000) for prefix in ("eval", "eval_best",
+                                                                                       "eval_best_eval")
+                        for key, values in spec.get(prefix, {}).items() if values[seed] is not None]
+            client.log_batch(run_id, metrics=metrics, params=[Param(k, v) for k, v in params.items()])
+            client.set_terminated(run_id)
+
+
+def by_hand(agent: str, prefix: str, key: str, scale: float = 1.0) -> tuple[float, float, int]:
+    """(mean, half-width of the 95% Student-t CI (NaN for one seed), seeds) of POLICY_RUNS' values."""
+    x = scale * np.array([v for v in POLICY_RUNS[agent].get(prefix, {}).get(key, []) if v is not None])
+    if len(x) < 2:
+        return (x.mean() if len(x) else np.nan), np.nan, len(x)
+    return x.mean(), t_dist.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)), len(x)
+
+
+@pytest.fixture(scope="module")
+def policy_report(tmp_path_factory):
+    """(output dir, stdout) of the report of POLICY_RUNS."""
+    tmp = tmp_path_factory.mktemp("policies")
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    log_policy_runs(MlflowClient(uri), "policies")
+    code, stdout, stderr = run_report(uri, tmp / "out", "--experiment", "policies")
+    assert code == 0, stdout + stderr
+    return tmp / "out", stdout
+
+
+def test_table3_shows_the_final_and_the_best_policy_side_by_side(policy_report):
+    out, _ = policy_report
+    table = pd.read_csv(out / "table3.csv").set_index("agent")
+    shown = md_table(out / "table3.md").set_index("Control policy")
+    assert list(shown.index) == ["PPO", "L2 + PPO", "RECOM + L2 PPO"]
+    columns = ["Seeds", "Success final (%)", "Success best (%)", "MSE x final (m²)", "MSE x best (m²)",
+               "MSE y final (m²)", "MSE y best (m²)", "MSE z final (m²)", "MSE z best (m²)", "Best taken at (step)"]
+    assert list(shown.columns[1:1 + len(columns)]) == columns  # after the training wind
+    cells = {"ppo": shown.loc["PPO"], "l2": shown.loc["L2 + PPO"], "recom_l2": shown.loc["RECOM + L2 PPO"]}
+    for agent, cell in cells.items():
+        seeds = len(POLICY_RUNS[agent]["policy"])
+        assert table.loc[agent, "n_seeds"] == seeds and cell["Seeds"] == str(seeds)
+        for prefix, suffix, policy in [("eval", "", "final"), ("eval_best", "_best", "best"),
+                                       ("eval_best_eval", "_best_eval", None)]:
+            assert table.loc[agent, f"n_seeds{suffix or '_final'}"] == by_hand(agent, prefix, "success_rate")[2]
+            for key, scale, title, digits in [("success_rate", 100.0, "Success", 0), ("mse_x", 1.0, "MSE x", 2),
+                                              ("mse_y", 1.0, "MSE y", 2), ("mse_z", 1.0, "MSE z", 2)]:
+                mean, half, n = by_hand(agent, prefix, key, scale)
+                for got, want in [(table.loc[agent, f"{key}{suffix}_mean"], mean),
+                                  (table.loc[agent, f"{key}{suffix}_ci95"], half)]:
+                    assert (np.isnan(got) and np.isnan(want)) or got == pytest.approx(want), (agent, prefix, key)
+                if policy is None:  # the policy kept at the best in-training evaluation: in the CSV only
+                    continue
+                text = "–" if n == 0 else f"{mean:.{digits}f}" + (f" ± {half:.{digits}f}" if n > 1 else "")
+                text += f" (n={n})" if 0 < n < seeds else ""
+                assert cell[f"{title} {policy} ({'%' if key == 'success_rate' else 'm²'})"] == text, (agent, key)
+    # PPO: final over 3 seeds, best over the 2 that kept one; success 20/40/90 -> 50 ± 90, 80/50 -> 65 ± 191
+    assert cells["ppo"]["Success final (%)"] == "50 ± 90" and cells["ppo"]["Success best (%)"] == "65 ± 191 (n=2)"
+    assert cells["ppo"]["MSE x best (m²)"] == "0.10 ± 0.64 (n=2)"
+    assert table.loc["ppo", "source_step_best_mean"] == 450.0 and cells["ppo"]["Best taken at (step)"] == "450 (n=2)"
+    assert table.loc["ppo", "source_step_best_eval_mean"] == 500.0
+    assert table.loc["ppo", "source_score_best_mean"] == -15.0
+    # L2, an older store: final only; RECOM, eval.policy=best: its evaluations during training are not final
+    assert [cells["l2"][c] for c in columns[2::2]] == ["–"] * 4 and cells["l2"]["Best taken at (step)"] == "–"
+    assert [cells["recom_l2"][c] for c in columns[1:9:2]] == ["–"] * 4
+    assert cells["recom_l2"]["Success best (%)"] == "80 ± 254" and cells["recom_l2"]["Best taken at (step)"] == "800"
+    # the top seed (highest final training reward: the highest seed) scores the final policy; RECOM's has none
+    assert table.loc["ppo", "top_seed"] == 2 and cells["ppo"]["Top seed: success final (%)"] == "90"
+    assert cells["ppo"]["Top seed: MSE x/y/z final (m²)"] == "0.30 / 1.40 / 0.20"
+    assert cells["recom_l2"]["Top seed"] == "1" and cells["recom_l2"]["Top seed: success final (%)"] == "–"
+    assert cells["recom_l2"]["Top seed: MSE x/y/z final (m²)"] == "–"
+    caption = (out / "table3.md").read_text().split("\n\n")[0]
+    for words in ["a constant 3 m/s wind", "final = the policy at the end of training (eval/*)",
+                  "best = the policy kept during training at its highest mean training episode reward",
+                  "Best taken at = the timestep", "runs with eval.policy=best no final policy's",
+                  "its final policy's success rate"]:
+        assert words in caption, words
+    tex = (out / "table3.tex").read_text()
+    assert "Success final (\\%) & Success best (\\%)" in tex and "policy kept at the highest training reward" in tex
+
+
+def test_summary_and_brief_show_final_and_best_evaluation(policy_report):
+    out, stdout = policy_report
+    summary = pd.read_csv(out / "summary.csv").set_index("agent")
+    shown = md_table(out / "summary.md").set_index("Agent")
+    labels = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
+    for agent, label in labels.items():
+        seeds = len(POLICY_RUNS[agent]["policy"])
+        for prefix, policy in [("eval", "final"), ("eval_best", "best"), ("eval_best_eval", None)]:
+            column = "eval" + prefix.removeprefix("eval")
+            for what in ("success", "crash"):
+                mean, _, n = by_hand(agent, prefix, f"{what}_rate", 100.0)
+                got = summary.loc[agent, f"{column}_{what}_pct"]
+                assert (np.isnan(got) and n == 0) or got == pytest.approx(mean), (agent, prefix, what)
+                if policy is not None:
+                    text = "–" if n == 0 else f"{mean:.0f}" + (f" (n={n})" if n < seeds else "")
+                    assert shown.loc[label, f"Eval {what} {policy} (%)"] == text, (agent, prefix, what)
+    assert shown.loc["PPO", "Eval crash final (%)"] == "13" and shown.loc["PPO", "Eval crash best (%)"] == "10 (n=2)"
+    assert shown.loc["RECOM + L2 PPO", "Eval success final (%)"] == "–"  # not its in-training 5%
+    assert shown.loc["RECOM + L2 PPO", "Best taken at (step)"] == "800"
+    assert summary.loc["ppo", "eval_best_source_step"] == 450.0
+    assert summary.loc["ppo", "eval_best_eval_source_step"] == 500.0
+    note = (out / "summary.md").read_text().split("\n\n")[0]
+    assert "eval success / crash = the success and crash rates of the evaluation at the end of the run" in note
+    assert "best = the policy kept during training at its highest mean training episode reward" in note
+    # the terminal's table: final and best evaluation success
+    brief = (out / "brief.txt").read_text().splitlines()
+    assert brief[0].split()[:9] == ["Agent", "Wind", "Seeds", "Eval", "success", "final", "(%)", "Eval", "success"]
+    assert "Eval success best (%)" in brief[0] and "Eval crash final (%)" in brief[0]
+    rows = {line.split("  ")[0].strip(): line.split() for line in brief[2:]}
+    assert rows["PPO"][2:6] == ["3", "50", "65", "(n=2)"]
+    assert rows["L2 + PPO"][4:8] == ["2", "20", "–", "50"]
+    assert rows["RECOM + L2 PPO"][6:8] == ["–", "80"]
+    assert "\n".join(brief) in stdout
+
+
+def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeypatch):
+    """eval.policy=best everywhere: no final policy's evaluation at the end (only the ones during training). Every
+    figure and table is written, the flight figures from the best policy's flights and saying so, the final
+    columns '–'."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_many_agents(MlflowClient(uri), "best", seeds=1, flights=tmp_path / "flights", policy="best")
+    titles, save = {}, figures.save
+
+    def spy(fig, out, stem):
+        titles[stem] = " ".join([fig.get_suptitle(), *(leg.get_title().get_text() for leg in fig.legends)])
+        return save(fig, out, stem)
+
+    monkeypatch.setattr(figures, "save", spy)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "best")
+    assert code == 0, stdout + stderr
+    out = tmp_path / "out"
+    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES}
+                                 | {"eval_flights_3d", "eval_position_axes"})
+    for name in TABLES + ["brief.txt"]:
+        assert (out / name).stat().st_size > 0, name
+    assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
+    for stem in ("eval_flights_3d", "eval_position_axes"):
+        assert "best policy (by training reward)" in titles[stem] and "final policy" not in titles[stem], stem
+    table = md_table(out / "table3.md")
+    for column in ["Success final (%)", "MSE x final (m²)", "MSE y final (m²)", "MSE z final (m²)",
+                   "Top seed: success final (%)"]:
+        assert (table[column] == "–").all(), column
+    best = pd.read_csv(out / "table3.csv").set_index("agent")
+    for k, agent in enumerate(MANY):
+        assert best.loc[agent, "success_rate_best_mean"] == pytest.approx(5.0 * k)
+        assert best.loc[agent, "mse_x_best_mean"] == pytest.approx(0.1 * (k + 1))
+        assert best.loc[agent, "source_step_best_mean"] == 10_000
+    assert (table["Best taken at (step)"] == "10k").all()
+    summary = md_table(out / "summary.md")
+    assert (summary["Eval success final (%)"] == "–").all() and (summary["Eval crash final (%)"] == "–").all()
+    assert (summary["Eval crash best (%)"] == "0").all()
+    # the evaluation during training is drawn as before, from eval/*
+    assert "eval_success_paper" in titles and "eval_crash_paper" in titles
 
 
 def test_without_by_conditions_are_agents_and_look_as_before(plain_report):

@@ -215,7 +215,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
 
 
 # How the flight figures name the policy they show (load.POLICIES keys).
-POLICY_NAMES = {"final": "final policy", "best": "best policy (highest training reward)"}
+POLICY_NAMES = {"final": "final policy", "best": "best policy (by training reward)"}
 
 
 def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame, str]:
@@ -224,7 +224,7 @@ def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame, str]:
     (eval_best/return) only where no run of that wind evaluated its final policy (every run eval.policy=best)."""
     wind = "paper" if "paper" in set(runs["wind"]) else sorted(runs["wind"].unique())[0]
     sub = runs[runs["wind"] == wind]
-    policy = "final" if sub["eval/return"].notna().any() or not sub["eval_best/return"].notna().any() else "best"
+    policy = "final"
     sub = sub.sort_values(f"{load.POLICIES[policy]}/return", ascending=False, na_position="last")
     return wind, sub.drop_duplicates("condition").set_index("condition"), policy
 
@@ -273,15 +273,15 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path, p
     handles = [Line2D([], [], color="0.3", marker="o", linestyle="-", markersize=3, label="start"),
                Line2D([], [], color="k", marker="*", linestyle="", markersize=6, label="target"),
                Line2D([], [], color="k", marker="x", linestyle="", markersize=4, label="crash")]
-    title = (f"Evaluation wind {np.linalg.norm(wind_vec):g} m/s along {_direction(wind_vec)}\n"
-             f"agents trained with wind '{wind}'\nbest-return seed per {'condition' if conds.by else 'agent'}, "
-             f"{POLICY_NAMES[policy]}")
-    if spare:
-        fig.legend(handles=handles, loc="center", ncol=1, frameon=False, title=title,
-                   bbox_to_anchor=(0.75, 0.5 / rows))
+    air = f"Evaluation wind {np.linalg.norm(wind_vec):g} m/s along {_direction(wind_vec)}"
+    trained = f"agents trained with wind '{wind}'"
+    seed = f"best-return seed per {'condition' if conds.by else 'agent'}"
+    if spare:  # in the empty panel, half the width: a line each
+        fig.legend(handles=handles, loc="center", ncol=1, frameon=False, bbox_to_anchor=(0.75, 0.5 / rows),
+                   title="\n".join([air, trained, seed, POLICY_NAMES[policy]]))
     else:
         fig.legend(handles=handles, loc="lower center", ncol=3, frameon=False, bbox_to_anchor=(0.5, 0.0),
-                   title=title.replace("'\nbest", "', best"))
+                   title=f"{air}, {POLICY_NAMES[policy]}\n{trained}, {seed}")
     fig.subplots_adjust(left=0.02, right=0.95, top=0.93, bottom=legend_h / fig.get_figheight(), wspace=0.15,
                         hspace=0.25 + 0.1 * extra)
     return save(fig, out, "eval_flights_3d")

@@ -221,6 +221,12 @@ def _fixed(value: float, digits: int) -> str:
     return f"{value:.{digits}f}" if np.isfinite(value) else "–"
 
 
+def eval_wind(runs: pd.DataFrame) -> str:
+    """The evaluation wind the runs logged, as text: 'a constant 3 m/s wind' (several speeds joined by ' / ')."""
+    speeds = sorted(set(pd.to_numeric(runs["eval_wind_speed"], errors="coerce").dropna()))
+    return f"a constant {' / '.join(f'{v:g}' for v in speeds)} m/s wind" if speeds else "constant wind"
+
+
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
                  baseline: tuple[str, str] | None = None) -> list[Path]:
     per_run = stats.per_run_curve_stats(histories)
@@ -233,7 +239,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
                "policy's evaluation, runs with eval.policy=best no final policy's; (n=k) = only k of the seeds "
                "evaluated that policy")
     (out / "table3.md").write_text(
-        "Evaluation under constant wind (Table III, wind eval.wind_speed): success rate and per-axis position MSE, "
+        f"Evaluation under {eval_wind(runs)} (eval.wind_speed; Table III): success rate and per-axis position MSE, "
         f"mean ± 95% Student-t CI over seeds, of two policies of each run: {policies}. Best taken at = the "
         f"timestep the best policy was kept at (mean over seeds). {missing}. Top seed = the seed whose final "
         f"training reward (mean episode reward over the last {stats.FINAL_FRACTION:.0%} of timesteps) is highest "
