@@ -192,8 +192,8 @@ def ppo_run(backend: str, n_envs: int, seed: int = 0, rollouts: int = PPO_ROLLOU
             "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "pid": os.getpid()}
 
 
-def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int = 1) -> dict:
-    """One ``python -m sweep experiment=paper agent.learner=jax`` job in-process, into a temporary store."""
+def _timed_run(overrides: list[str], barrier: str | None = None, parties: int = 1) -> tuple[float, float]:
+    """``sweep.run.run`` of the composed config in-process, into a temporary store; (start, wall seconds)."""
     from pathlib import Path
 
     from hydra import compose, initialize_config_dir
@@ -206,13 +206,17 @@ def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int 
 
         ensure_store(os.environ["MLFLOW_TRACKING_URI"], "bench")
         with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[
-                "experiment=paper", "agent.learner=jax", f"train.total_timesteps={total}", f"seed={seed}",
-                "tracking.experiment=bench", "train.progress_every_s=1000", "tracking.log_model=false"])
+            cfg = compose(config_name="config", overrides=[*overrides, "agent.learner=jax", "tracking.experiment=bench",
+                                                            "train.progress_every_s=1000", "tracking.log_model=false"])
         _file_barrier(barrier, parties)
         t0 = time.perf_counter()
         run(cfg, Path(tmp) / "job")
-        wall = time.perf_counter() - t0
+        return t0, time.perf_counter() - t0
+
+
+def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int = 1) -> dict:
+    """One ``python -m sweep experiment=paper agent.learner=jax`` job in-process, into a temporary store."""
+    t0, wall = _timed_run(["experiment=paper", f"train.total_timesteps={total}", f"seed={seed}"], barrier, parties)
     return {"steps": total, "wall": wall, "t0": t0, "t1": t0 + wall,
             "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
@@ -221,15 +225,11 @@ def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
     """One JAX run of ``agent`` end to end (``sweep.run.run``: diagnostics, MLflow into a temporary store,
     checkpoints, the final evaluation), paper layout, ``rollouts`` x 2048 steps; the time spent inside its
     remedies' callback hooks, accumulated by wrapping those hooks on the remedy classes."""
-    from pathlib import Path
-
-    from hydra import compose, initialize_config_dir
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
     from sweep.plasticity.l2 import L2Regularization
     from sweep.plasticity.recom import Recom
     from sweep.plasticity.remedy import Remedy
-
-    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
     spent, learning = [0.0], [0.0]
     learn = OnPolicyAlgorithm.learn
@@ -249,20 +249,7 @@ def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
                     spent[0] += time.perf_counter() - t
                     return out
                 setattr(cls, hook, timed)
-    with tempfile.TemporaryDirectory() as tmp:
-        os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp}/mlflow.db"
-        os.environ["SWEEP_CHECKPOINT_DIR"] = f"{tmp}/checkpoints"
-        from sweep.run import run
-        from sweep.tracking import PROJECT_ROOT, ensure_store
-
-        ensure_store(os.environ["MLFLOW_TRACKING_URI"], "bench")
-        with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[
-                f"agent={agent}", "agent.learner=jax", f"train.total_timesteps={rollouts * ROLLOUT}",
-                "tracking.experiment=bench", "train.progress_every_s=1000", "tracking.log_model=false"])
-        t0 = time.perf_counter()
-        run(cfg, Path(tmp) / "job")
-        wall = time.perf_counter() - t0
+    _, wall = _timed_run([f"agent={agent}", f"train.total_timesteps={rollouts * ROLLOUT}"])
     return {"agent": agent, "wall": learning[0], "run_wall": wall, "fps": rollouts * ROLLOUT / learning[0],
             "remedy_s": spent[0], "share": spent[0] / learning[0]}
 
