@@ -224,7 +224,7 @@ def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame, str]:
     (eval_best/return) only where no run of that wind evaluated its final policy (every run eval.policy=best)."""
     wind = "paper" if "paper" in set(runs["wind"]) else sorted(runs["wind"].unique())[0]
     sub = runs[runs["wind"] == wind]
-    policy = "final"
+    policy = "final" if sub["eval/return"].notna().any() or not sub["eval_best/return"].notna().any() else "best"
     sub = sub.sort_values(f"{load.POLICIES[policy]}/return", ascending=False, na_position="last")
     return wind, sub.drop_duplicates("condition").set_index("condition"), policy
 
