@@ -32,7 +32,7 @@ from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.probe import PlasticityProbe
 from sweep.status import read_status, write_status
-from sweep.tracking import PROJECT_ROOT, MlflowWriter, TrackedRun, last_logged_step, tracking_uri
+from sweep.tracking import PROJECT_ROOT, MlflowWriter, TrackedRun, checkpoint_dir_of_run, last_logged_step, tracking_uri
 
 log = logging.getLogger("sweep")
 
@@ -63,10 +63,8 @@ def job_record(cfg: DictConfig) -> JobRecord:
     checkpoint_dir = (read_status(path) or {}).get("checkpoint_dir")
     if checkpoint_dir:
         return JobRecord(Path(checkpoint_dir))
-    from mlflow.tracking import MlflowClient
-
     try:
-        return JobRecord(Path(MlflowClient(uri).get_run(resume).data.tags["checkpoint_dir"]))
+        return JobRecord(checkpoint_dir_of_run(uri, resume))
     except Exception as err:  # noqa: BLE001
         raise ConfigError(f"resume={resume!r}: must be auto, never, a job output dir or an MLflow run id "
                           f"of this store with a checkpoint ({type(err).__name__})") from None

@@ -27,22 +27,14 @@ def read_status(job_dir: Path) -> dict | None:
     return read_json(job_dir / "status.json") or None
 
 
-def ui_command(uri: str) -> str:
-    from sweep.tracking import PROJECT_ROOT
-
-    if uri == f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}":
-        return f"cd {PROJECT_ROOT} && mlflow ui"
-    return f"mlflow ui --backend-store-uri {uri}"
-
-
-def report_sweep(sweep_dir: Path, uri: str, runs_url: str | None = None) -> None:
+def report_sweep(sweep_dir: Path, uri: str, ui: str, runs_url: str | None = None) -> None:
     """Print one line per failed job and where results are; exit 1 if any job did not finish."""
     jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir() and (p / ".hydra").exists()),
                   key=lambda p: (len(p.name), p.name)) if sweep_dir.exists() else []
     statuses = [(job, read_status(job) or {"status": "UNKNOWN", "reason": "no status.json (job died?)"}) for job in jobs]
     bad = [(job, s) for job, s in statuses if s["status"] != "FINISHED"]
     print(f"sweep: {len(statuses) - len(bad)}/{len(statuses)} jobs finished; outputs in {sweep_dir}")
-    print(f"sweep: MLflow store {uri}; open it with: {ui_command(uri)}")
+    print(f"sweep: MLflow store {uri}; open it with: {ui}")
     if runs_url:
         print(f"sweep: then the runs table: {runs_url}")
     for job, s in bad:

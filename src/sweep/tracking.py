@@ -76,6 +76,18 @@ def experiment_url(uri: str, experiment: str, address: str = UI_ADDRESS) -> str 
     return f"{address}/#/experiments/{exp.experiment_id}?workflowType=machine_learning"
 
 
+def ui_command(uri: str) -> str:
+    """The command that opens this store in the MLflow UI (a bare ``mlflow ui`` for the project's default store)."""
+    if uri == f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}":
+        return f"cd {PROJECT_ROOT} && mlflow ui"
+    return f"mlflow ui --backend-store-uri {uri}"
+
+
+def checkpoint_dir_of_run(uri: str, run_id: str) -> Path:
+    """The checkpoint directory an MLflow run of this store was tagged with (for ``resume=<run id>``)."""
+    return Path(MlflowClient(tracking_uri=uri).get_run(run_id).data.tags["checkpoint_dir"])
+
+
 def experiment_names(uri: str) -> list[str]:
     """The store's experiments, newest first (MLflow's ``Default`` left out)."""
     exps = MlflowClient(tracking_uri=uri).search_experiments(order_by=["creation_time DESC"])
@@ -216,14 +228,8 @@ class SweepCallback(Callback):
         from sweep.status import report_sweep
 
         uri = tracking_uri(config.tracking.uri)
-        report_sweep(Path(config.hydra.sweep.dir), uri, experiment_url(uri, config.tracking.experiment))
+        report_sweep(Path(config.hydra.sweep.dir), uri, ui_command(uri), experiment_url(uri, config.tracking.experiment))
 
     def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
         uri = tracking_uri(config.tracking.uri)
-        print(f"sweep: runs in the MLflow UI ({_ui_hint(uri)}): {experiment_url(uri, config.tracking.experiment)}")
-
-
-def _ui_hint(uri: str) -> str:
-    from sweep.status import ui_command
-
-    return ui_command(uri)
+        print(f"sweep: runs in the MLflow UI ({ui_command(uri)}): {experiment_url(uri, config.tracking.experiment)}")
