@@ -10,7 +10,8 @@ project's 2-core reference machine, from benchmarks/RESULTS.md:
     jax      16 x 128                    47,600   the same x (e)/(d) = 55,635 / 51,258 (the bare learners' ratio)
 
 Two runs on two cores: SB3 1.91x one run's rate, JAX 1.64x (bench rows "joblib aggregate" and "2 concurrent
-runs"). The backend ``rotorpy`` runs SB3 at 672 ts/s (row (a)). Another machine scales all of it.
+runs"). The backend ``rotorpy`` runs SB3 at 672 ts/s (row (a)). Each job also pays ~10 s of start-up (imports,
+MLflow) and evaluation (README, "Simulator backends and speed"). Another machine scales all of it.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from itertools import product
 RATES = {("sb3", False): 1_737, ("sb3", True): 3_699, ("jax", False): 43_842, ("jax", True): 47_600}
 ROTORPY_RATE = 672
 TWO_CORE_SPEEDUP = {"sb3": 1.91, "jax": 1.64}
+JOB_FIXED_S = 10.0  # start-up and evaluation of one job
 JAX_VS_SB3 = 20  # ~ 43,842 / 1,737 = 25 at 1 x 2048, 47,600 / 3,699 = 13 at 16 x 128: "about a twentieth"
 
 
@@ -46,7 +48,7 @@ def job_overrides(task: list[str], sweeper_params: dict[str, str]) -> list[dict[
 def run_seconds(learner: str, n_envs: int, n_steps: int, total_timesteps: int, backend: str = "fast") -> float:
     rate = ROTORPY_RATE if learner == "sb3" and backend != "fast" else RATES[(learner, n_envs >= 16)]
     rollout = n_envs * n_steps
-    return math.ceil(total_timesteps / rollout) * rollout / rate
+    return math.ceil(total_timesteps / rollout) * rollout / rate + JOB_FIXED_S
 
 
 def estimate(cfg, task: list[str], sweeper_params: dict[str, str], n_jobs: int) -> tuple[float, int, set[str]]:
