@@ -67,6 +67,10 @@ def vector3(v: Any) -> bool:
     return isinstance(v, list) and len(v) == 3 and all(_is_num(s) for s in v) and any(s != 0 for s in v)
 
 
+def param_groups_list(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"}
+
+
 def networks_list(v: Any) -> bool:
     return isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value"}
 
@@ -124,12 +128,10 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("agent.ppo.lr_floor", non_negative, "a number >= 0"),
     ("agent.l2.coef", non_negative, "a number >= 0"),
     ("agent.l2.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
-    ("agent.l2.params", lambda v: isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"},
-     "a non-empty subset of [policy, value, log_std]"),
+    ("agent.l2.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
     ("agent.l2_init.coef", non_negative, "a number >= 0"),
     ("agent.l2_init.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
-    ("agent.l2_init.params", lambda v: isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"},
-     "a non-empty subset of [policy, value, log_std]"),
+    ("agent.l2_init.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
     ("agent.redo.every_updates", positive_int, "an integer > 0 (PPO updates)"),
     ("agent.redo.tau", unit_interval, "a number in [0, 1]"),
     ("agent.redo.networks", networks_list, "a non-empty subset of [policy, value]"),
@@ -137,8 +139,7 @@ RULES: list[tuple[str, Callable[[Any], bool], str]] = [
     ("agent.shrink_perturb.every_updates", positive_int, "an integer > 0 (PPO updates)"),
     ("agent.shrink_perturb.shrink", unit_interval, "a number in [0, 1]"),
     ("agent.shrink_perturb.perturb", non_negative, "a number >= 0"),
-    ("agent.shrink_perturb.params", lambda v: isinstance(v, list) and len(v) > 0
-     and set(v) <= {"policy", "value", "log_std"}, "a non-empty subset of [policy, value, log_std]"),
+    ("agent.shrink_perturb.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
     ("agent.cbp.replacement_rate", unit_interval, "a number in [0, 1] (per eligible unit and minibatch step)"),
     ("agent.cbp.maturity", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (minibatch steps)"),
     ("agent.cbp.decay", unit_interval, "a number in [0, 1]"),

@@ -19,9 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.plasticity.remedy import Remedy, UnitSurgery
-
-NETWORKS = ("policy", "value")
+from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery, chosen_networks
 
 
 class ContinualBackprop(Remedy):
@@ -31,10 +29,8 @@ class ContinualBackprop(Remedy):
     def __init__(self, replacement_rate: float = 1e-4, maturity: int = 10_000, decay: float = 0.99,
                  networks=NETWORKS, batch_size: int = 256, reset_adam: bool = False) -> None:
         super().__init__(every_updates=1, batch_size=batch_size)
-        if not set(networks) <= set(NETWORKS) or not networks:
-            raise ValueError(f"networks={list(networks)!r}; allowed: a non-empty subset of {list(NETWORKS)}")
         self.rate, self.maturity, self.decay = float(replacement_rate), int(maturity), float(decay)
-        self.networks, self.reset_adam = tuple(networks), bool(reset_adam)
+        self.networks, self.reset_adam = chosen_networks(networks), bool(reset_adam)
         self.utility: dict[str, np.ndarray] = {}   # "<network>/<k>" -> per unit
         self.age: dict[str, np.ndarray] = {}
         self.pending: dict[str, float] = {}        # accrued fractional replacements

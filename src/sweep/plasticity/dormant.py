@@ -27,10 +27,7 @@ def dormant_mask(h: np.ndarray, tau: float) -> np.ndarray:
 
 def dormant_ratio(layers: list[np.ndarray], tau: float) -> tuple[float, list[float]]:
     """(ratio over all units of all layers, ratio per layer)."""
-    masks = [dormant_mask(np.asarray(h), tau) for h in layers]
-    total = sum(m.size for m in masks)
-    overall = sum(int(m.sum()) for m in masks) / max(total, 1)
-    return overall, [float(m.mean()) for m in masks]
+    return pooled([dormant_mask(np.asarray(h), tau) for h in layers])
 
 
 def pooled(masks: list[np.ndarray]) -> tuple[float, list[float]]:

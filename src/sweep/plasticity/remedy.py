@@ -21,6 +21,16 @@ from sweep.agents.networks import HIDDEN_GAIN, Network, orthogonal
 from sweep.plasticity.batch import recent_rollout
 
 
+NETWORKS = ("policy", "value")
+
+
+def chosen_networks(networks) -> tuple[str, ...]:
+    """The networks a unit-level remedy acts on (a non-empty subset of policy, value)."""
+    if not networks or not set(networks) <= set(NETWORKS):
+        raise ValueError(f"networks={list(networks)!r}; allowed: a non-empty subset of {list(NETWORKS)}")
+    return tuple(networks)
+
+
 class UnitSurgery:
     """Collects unit re-initialisations on a copy of the parameters; ``commit`` writes them in one go."""
 
