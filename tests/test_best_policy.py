@@ -30,9 +30,9 @@ def test_the_best_policy_is_kept_and_scored_not_the_final_one(store, tmp_path):
 
     def scored(artifact: str, prefix: str) -> None:
         path = client.download_artifacts(run_id, artifact, str(tmp_path / "dl"))
-        ours, _ = evaluate(PPO.load(path, device="cpu"), cfg)
-        for key, value in ours.items():
-            assert metrics[f"{prefix}/{key.split('/', 1)[1]}"] == pytest.approx(value, rel=1e-5, abs=1e-6), (prefix, key)
+        ours, _ = evaluate(PPO.load(path, device="cpu"), cfg.eval, cfg.env)
+        for field, value in ours.items():
+            assert metrics[f"{prefix}/{field}"] == pytest.approx(value, rel=1e-5, abs=1e-6), (prefix, field)
 
     scored("model.zip", "eval")            # the final policy's evaluation is the final model's
     scored("model_best.zip", "eval_best")  # eval_best/* is the kept policy's, not the final one's

@@ -88,10 +88,11 @@ def test_evaluate_scores_real_flights_with_the_rule(monkeypatch, name, crash_rat
             return built["policy"].predict(obs, deterministic)
 
     monkeypatch.setattr(sweep.evaluate, "make_env", make_env)
-    metrics, flights = evaluate(Policy(), compose_cfg(["eval.episodes=4", "eval.wind_speed=0.0"]))
-    assert metrics["eval/crash_rate"] == crash_rate and metrics["eval/success_rate"] == success
+    cfg = compose_cfg(["eval.episodes=4", "eval.wind_speed=0.0"])
+    metrics, flights = evaluate(Policy(), cfg.eval, cfg.env)
+    assert metrics["crash_rate"] == crash_rate and metrics["success_rate"] == success
     scored = np.stack([scored_positions(p) for p in flights["positions"]])
     assert scored.shape == (4, 500, 3) and not np.isnan(scored).any()
-    np.testing.assert_allclose(metrics["eval/mse_z"], np.mean(scored[:, :, 2] ** 2))
+    np.testing.assert_allclose(metrics["mse_z"], np.mean(scored[:, :, 2] ** 2))
     np.testing.assert_allclose(flights["mse"], np.mean(scored ** 2, axis=1))
-    assert metrics["eval/return"] == pytest.approx(flights["rewards"].sum(axis=1).mean())
+    assert metrics["return"] == pytest.approx(flights["rewards"].sum(axis=1).mean())

@@ -16,8 +16,7 @@ from __future__ import annotations
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-# which kept policy is logged under which prefix at the end of the run
-PREFIXES = {"reward": "eval_best", "eval": "eval_best_eval"}
+from sweep.metrics import eval_key
 
 
 class BestPolicies(BaseCallback):
@@ -45,6 +44,6 @@ class BestPolicies(BaseCallback):
         episodes = self.model.ep_info_buffer
         if episodes:
             self.offer("reward", float(np.mean([ep["r"] for ep in episodes])))
-        eval_return = self.model.logger.name_to_value.get("eval/return")
+        eval_return = self.model.logger.name_to_value.get(eval_key("final", "return"))
         if eval_return is not None:   # PeriodicEvaluation evaluated at this rollout end
             self.offer("eval", float(eval_return))

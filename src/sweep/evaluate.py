@@ -19,8 +19,9 @@ import numpy as np
 from omegaconf import DictConfig
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep import metrics
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.envs.reward import HoverReward
+from sweep.envs.factory import make_env
 
 
 def hover_success(positions: np.ndarray, crashed: bool, radius: float, hold_steps: int) -> bool:
@@ -29,18 +30,6 @@ def hover_success(positions: np.ndarray, crashed: bool, radius: float, hold_step
         return False
     tail = positions[-max(int(hold_steps), 1):]
     return bool(np.all(np.linalg.norm(tail, axis=1) <= radius))
-
-
-def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False) -> HoverVecEnv:
-    """The hover env of ``env_cfg``; the reward it returns is scaled by ``env.reward_scale`` only for a learner
-    (``learning=True``): evaluations see the task's reward."""
-    return HoverVecEnv(
-        n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
-        sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
-        world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
-        observation=env_cfg.observation, time_limit=env_cfg.time_limit,
-        observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
-        seed=seed)
 
 
 def fly(policy, env: HoverVecEnv) -> dict[str, np.ndarray]:
@@ -93,38 +82,34 @@ def flight_metrics(positions: np.ndarray, crashed: bool, radius: float, hold_ste
             "success": float(hover_success(scored, crashed, radius, hold_steps))}
 
 
-def evaluate(policy, cfg: DictConfig) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-    """Run the protocol; returns (metrics named eval/*, trajectories for the run's artifact)."""
-    ev = cfg.eval
+def evaluate(policy, eval_cfg: DictConfig, env_cfg: DictConfig) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Run the protocol of ``eval_cfg`` on the task of ``env_cfg``; returns (one value per
+    ``sweep.metrics.EVAL_FIELDS`` name, trajectories for the run's artifact)."""
+    ev = eval_cfg
     wind = WindSchedule.constant(ev.wind_speed, list(ev.direction))
-    env = make_env(cfg.env, ev.episodes, wind, ev.seed)
+    env = make_env(env_cfg, ev.episodes, wind, ev.seed)
     flights = fly(policy, env)
-    hold_steps = int(round(ev.success_hold_s * cfg.env.sim_rate))
+    hold_steps = int(round(ev.success_hold_s * env_cfg.sim_rate))
     per_flight = [flight_metrics(pos, bool(crash), ev.success_radius, hold_steps)
                   for pos, crash in zip(flights["positions"], flights["crashed"])]
     mean = {key: float(np.mean([f[key] for f in per_flight])) for key in per_flight[0]}
-    metrics = {
-        "eval/success_rate": mean["success"],
-        "eval/mse_x": mean["mse_x"],
-        "eval/mse_y": mean["mse_y"],
-        "eval/mse_z": mean["mse_z"],
-        "eval/final_distance": mean["final_distance"],
-        "eval/return": float(flights["returns"].mean()),
-        "eval/crash_rate": float(flights["crashed"].mean()),
-    }
+    values = {"success_rate": mean["success"], "mse_x": mean["mse_x"], "mse_y": mean["mse_y"], "mse_z": mean["mse_z"],
+              "final_distance": mean["final_distance"], "return": float(flights["returns"].mean()),
+              "crash_rate": float(flights["crashed"].mean())}
     trajectories = {**flights, "success": np.array([f["success"] > 0 for f in per_flight]),
                     "mse": np.array([[f["mse_x"], f["mse_y"], f["mse_z"]] for f in per_flight]),
                     "dt": np.array(env.dt), "wind": wind.velocity_at(0)}
-    return metrics, trajectories
+    return {f.name: values[f.name] for f in metrics.EVAL_FIELDS}, trajectories
 
 
 class PeriodicEvaluation(BaseCallback):
-    """Runs the protocol during training every ``every`` timesteps (after the rollout that passes it),
-    logging ``eval/*`` at that step. The final evaluation is done by ``run`` at the end."""
+    """Runs the protocol during training every ``eval.every_timesteps`` (after the rollout that passes it),
+    logging the current policy's ``eval/*`` at that step. The final evaluation is done by ``run`` at the end."""
 
-    def __init__(self, cfg: DictConfig, every: int) -> None:
+    def __init__(self, eval_cfg: DictConfig, env_cfg: DictConfig) -> None:
         super().__init__()
-        self.cfg, self.every, self.next_at = cfg, int(every), int(every)
+        self.eval_cfg, self.env_cfg = eval_cfg, env_cfg
+        self.every = self.next_at = int(eval_cfg.every_timesteps)
 
     def _on_step(self) -> bool:
         return True
@@ -134,9 +119,9 @@ class PeriodicEvaluation(BaseCallback):
             return
         while self.next_at <= self.num_timesteps:
             self.next_at += self.every
-        metrics, _ = evaluate(self.model, self.cfg)
-        for key, value in metrics.items():
-            self.logger.record(key, value)
+        values, _ = evaluate(self.model, self.eval_cfg, self.env_cfg)
+        for field, value in values.items():
+            self.logger.record(metrics.eval_key("final", field), value)
 
     def state_dict(self) -> dict:
         return {"next_at": self.next_at}

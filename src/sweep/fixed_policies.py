@@ -24,7 +24,8 @@ import numpy as np
 from omegaconf import DictConfig
 
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.evaluate import flight_metrics, fly, make_env
+from sweep.envs.factory import make_env
+from sweep.evaluate import flight_metrics, fly
 
 
 class FixedPolicy:

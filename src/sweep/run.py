@@ -23,11 +23,12 @@ from stable_baselines3.common.utils import set_random_seed
 from threadpoolctl import threadpool_limits
 
 from sweep.agents import build_learner, build_remedies
-from sweep.best_policy import PREFIXES, BestPolicies
+from sweep import metrics
+from sweep.best_policy import BestPolicies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, validate
-from sweep.envs import WindSchedule
-from sweep.evaluate import PeriodicEvaluation, evaluate, make_env
+from sweep.envs.factory import make_env, wind_schedule
+from sweep.evaluate import PeriodicEvaluation, evaluate
 from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.probe import PlasticityProbe
@@ -90,17 +91,14 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
         return previous["run_id"]
     state = load_checkpoint(record.checkpoint) if previous else None
 
-    wind = WindSchedule(speeds=list(cfg.wind.speeds), segment_steps=cfg.wind.segment_steps,
-                        after_list=cfg.wind.get("after_list", "repeat"),
-                        direction=list(cfg.wind.direction), name=cfg.wind.name)
-    env = make_env(cfg.env, cfg.env.n_envs, wind, cfg.seed, learning=True)
+    env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed)
     callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics.from_config(cfg.plasticity), EnvMonitor()]
     probe = PlasticityProbe(**cfg.plasticity.probe, activation=cfg.agent.policy.activation, seed=cfg.seed) \
         if cfg.plasticity.probe.steps > 0 else None
     callbacks += [probe] if probe else []
     if cfg.eval.every_timesteps > 0:
-        callbacks.append(PeriodicEvaluation(cfg, cfg.eval.every_timesteps))
+        callbacks.append(PeriodicEvaluation(cfg.eval, cfg.env))
     best = BestPolicies()   # after PeriodicEvaluation: it reads the eval/return recorded at the same rollout end
     callbacks.append(best)
     checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
@@ -135,36 +133,37 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
             writer.flush()  # what was logged before a failure is kept too
 
         if cfg.eval.policy in ("final", "both"):
-            metrics = evaluate_and_store(model, cfg, tracked, out_dir, "eval", "")
-            log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+            scores = evaluate_and_store(model, cfg, tracked, out_dir, "final")
+            log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
         if cfg.eval.policy in ("best", "both"):
             final = model.parameter_arrays()
             for reading, kept in best.kept.items():
                 model.write_parameters(kept["params"])
-                prefix = PREFIXES[reading]
-                metrics = evaluate_and_store(model, cfg, tracked, out_dir, prefix, f"_{prefix.removeprefix('eval_')}",
-                                             {"source_step": kept["step"], "source_score": kept["score"]})
-                log.info("[%s] %s (from %s steps): %s", tags["run_name"], prefix, f"{kept['step']:,}",
-                         ", ".join(f"{k}={v:.3g}" for k, v in metrics.items()))
+                policy = metrics.KEPT[reading]
+                scores = evaluate_and_store(model, cfg, tracked, out_dir, policy,
+                                            {"source_step": kept["step"], "source_score": kept["score"]})
+                log.info("[%s] %s (from %s steps): %s", tags["run_name"], metrics.POLICIES[policy], f"{kept['step']:,}",
+                         ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
             model.write_parameters(final)
     record.write(status="FINISHED")
     return tracked.run_id
 
 
-def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, prefix: str, suffix: str,
+def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, policy: str,
                        extra: dict[str, float] | None = None) -> dict[str, float]:
-    """The evaluation protocol on the learner's current policy: metrics under ``<prefix>/*`` at the final step,
-    the flights as ``eval<suffix>_trajectories.npz`` and the model as ``model<suffix>.zip`` (run artifacts)."""
-    metrics, flights = evaluate(model, cfg)
-    metrics = {f"{prefix}/{k.split('/', 1)[1]}": v for k, v in metrics.items()}
-    metrics.update({f"{prefix}/{k}": float(v) for k, v in (extra or {}).items()})
-    tracked.log_metrics(metrics, model.num_timesteps)
+    """The evaluation protocol on the learner's current policy, scored as ``policy`` (a ``metrics.POLICIES``
+    key): metrics under its prefix at the final step, the flights as ``eval<suffix>_trajectories.npz`` and the
+    model as ``model<suffix>.zip`` (run artifacts; suffix "" for the final policy, else "_best", "_best_eval")."""
+    values, flights = evaluate(model, cfg.eval, cfg.env)
+    scores = {metrics.eval_key(policy, k): float(v) for k, v in {**values, **(extra or {})}.items()}
+    suffix = "" if policy == "final" else f"_{policy}"
+    tracked.log_metrics(scores, model.num_timesteps)
     np.savez_compressed(out_dir / f"eval{suffix}_trajectories.npz", **flights)
     tracked.log_artifact(out_dir / f"eval{suffix}_trajectories.npz")
     if cfg.tracking.log_model:
         model.save(out_dir / f"model{suffix}.zip")
         tracked.log_artifact(out_dir / f"model{suffix}.zip")
-    return metrics
+    return scores
 
 
 def run_job(cfg: DictConfig) -> str | None:

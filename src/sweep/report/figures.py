@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import textwrap
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -11,56 +10,14 @@ from matplotlib import pyplot as plt
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
+from sweep import metrics
+from sweep.metrics import Curve
 from sweep.report import load, stats, style
 
 
-@dataclass(frozen=True)
-class Curve:
-    """One panel of training curves: ``key`` (an MLflow metric, step = timesteps) times ``scale`` against
-    timesteps. ``percent``: y from just below 0 (at least to 1, so an all-zero curve is not centred on 0; a panel
-    where every value is 0 says so); ``ylim``: fixed y limits instead. ``sparse``: a metric logged at few steps
-    (evaluations), drawn on its logged steps with a marker at each; its figure is written only if some run logged
-    it at >= 2 steps. ``ylabel`` and ``note`` (what the panel's reading is, in a note below the figure's legend)
-    may name the thresholds of the runs drawn, ``{dormant_tau}``, ``{saturation}``, ``{dead_fraction}``,
-    ``{signed_mean_tau}`` (see ``thresholds``)."""
-    key: str
-    ylabel: str
-    scale: float = 1.0
-    logy: bool = False
-    percent: bool = False
-    ylim: tuple[float, float] | None = None
-    sparse: bool = False
-    note: str = ""
-
-
-# File stem (figure <stem>_<wind>) -> its panels, top to bottom. A figure is written for a wind condition when
-# some run of it has the first panel's metric; a lower panel is drawn when some run has its metric.
-CURVES = {
-    "reward": [Curve("rollout/ep_rew_mean", "Mean episode reward")],
-    "episode_length": [Curve("rollout/ep_len_mean", "Mean episode length (steps)")],
-    # the policy network's readings a tanh network can show (issue 18), each a share of its hidden units pooled
-    # over the layers (saturated: of its activations); older stores have the first and the last only
-    "dormant": [Curve("plasticity/dormant_ratio", "Sokar dormant,\nτ = {dormant_tau} (%)", 100.0, percent=True,
-                      note="Sokar dormant: units with E|h| ≤ τ × the layer's mean E|h|."),
-                Curve("plasticity/dormant_ratio_tau0.1", "Sokar dormant,\nτ = 0.1 (%)", 100.0, percent=True),
-                Curve("plasticity/dead_tanh_ratio", "Dead tanh\nunits (%)", 100.0, percent=True,
-                      note="Dead tanh: units with |h| > {saturation} on ≥ {dead_fraction} of the batch "
-                           "(stuck at ±1)."),
-                Curve("plasticity/signed_mean_ratio", "Signed mean\n≈ 0 (%)", 100.0, percent=True,
-                      note="Signed mean ≈ 0: units with |E h| ≤ {signed_mean_tau} × the layer's mean E|h| "
-                           "(a unit swinging between ±1 counts: not an idle unit)."),
-                Curve("plasticity/saturated_ratio", "Saturated\nactivations (%)", 100.0, percent=True,
-                      note="Saturated: activations with |h| > {saturation} (for tanh, 100 − "
-                           "Plasticine's active share).")],
-    "weight_norm": [Curve("plasticity/weight_norm", "Weight norm, policy + value nets")],
-    "learning_rate": [Curve("train/learning_rate", "Learning rate", logy=True)],
-    "eval_success": [Curve("eval/success_rate", "Evaluation success (%)", 100.0, ylim=(-3, 103), sparse=True)],
-    "eval_crash": [Curve("eval/crash_rate", "Evaluation crashes (%)", 100.0, ylim=(-3, 103), sparse=True)],
-    # PPO's own health: how far each update moves a policy whose exploration noise shrinks
-    "ppo_update": [Curve("train/std", "Policy std\n(action units)", logy=True),
-                   Curve("train/approx_kl", "Approx. KL\nper update", logy=True),
-                   Curve("train/clip_fraction", "Clip fraction (%)", 100.0, percent=True)],
-}
+# File stem (figure <stem>_<wind>) -> its panels, top to bottom (sweep.metrics.CURVES). A figure is written for a
+# wind condition when some run of it has the first panel's metric; a lower panel is drawn when some run has its metric.
+CURVES = metrics.FIGURES
 # What a figure's panels measure, before the notes of the panels drawn (below the legend).
 NOTES = {"dormant": "Policy network, its hidden layers pooled."}
 # conf/config.yaml's plasticity thresholds: the labels' values for runs that did not log the param (older stores)
@@ -224,8 +181,9 @@ def eval_runs(runs: pd.DataFrame) -> tuple[str, pd.DataFrame, str]:
     (eval_best/return) only where no run of that wind evaluated its final policy (every run eval.policy=best)."""
     wind = "paper" if "paper" in set(runs["wind"]) else sorted(runs["wind"].unique())[0]
     sub = runs[runs["wind"] == wind]
-    policy = "final" if sub["eval/return"].notna().any() or not sub["eval_best/return"].notna().any() else "best"
-    sub = sub.sort_values(f"{load.POLICIES[policy]}/return", ascending=False, na_position="last")
+    final, best = metrics.eval_key("final", "return"), metrics.eval_key("best", "return")
+    policy = "final" if sub[final].notna().any() or not sub[best].notna().any() else "best"
+    sub = sub.sort_values(metrics.eval_key(policy, "return"), ascending=False, na_position="last")
     return wind, sub.drop_duplicates("condition").set_index("condition"), policy
 
 

@@ -23,23 +23,11 @@ os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 from mlflow.exceptions import MlflowException  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
-EVAL_FIELDS = ["success_rate", "mse_x", "mse_y", "mse_z", "final_distance", "return", "crash_rate"]
-# The policies a run evaluates at its final step (eval.policy final|best|both; sweep.best_policy.PREFIXES): the
-# final one under eval/*, the one kept at the highest rollout/ep_rew_mean under eval_best/* (the paper's "policy
-# that produced the highest reward") and the one kept at the highest in-training eval return under
-# eval_best_eval/*, the best two with the timestep they were kept at and their score. Stores logged before
-# eval.policy existed have eval/* only.
-POLICIES = {"final": "eval", "best": "eval_best", "best_eval": "eval_best_eval"}
-SOURCE_FIELDS = ["source_step", "source_score"]
-EVAL_KEYS = ([f"eval/{f}" for f in EVAL_FIELDS]
-             + [f"{prefix}/{f}" for prefix in ("eval_best", "eval_best_eval") for f in EVAL_FIELDS + SOURCE_FIELDS])
-CURVE_KEYS = ["rollout/ep_rew_mean", "plasticity/dormant_ratio", "train/learning_rate", "rollout/ep_len_mean",
-              "plasticity/weight_norm", "plasticity/saturated_ratio"]  # every run logs these
-OPTIONAL_KEYS = ["recom/at_bound", "eval/success_rate", "eval/crash_rate",  # only RECOM / eval during training
-                 "train/std", "train/approx_kl", "train/clip_fraction",  # PPO's update statistics
-                 # the policy's readings a tanh network can show (issue 18); stores logged before lack them
-                 "plasticity/dormant_ratio_tau0.1", "plasticity/dead_tanh_ratio", "plasticity/signed_mean_ratio",
-                 "plasticity/active_ratio"]
+from sweep import metrics  # noqa: E402
+
+# What a run logged and the report reads: sweep.metrics (one registry of keys, labels, figures and tables).
+POLICIES, SOURCE_FIELDS, EVAL_KEYS = metrics.POLICIES, metrics.SOURCE_FIELDS, metrics.EVAL_KEYS
+CURVE_KEYS, OPTIONAL_KEYS = metrics.CURVE_KEYS, metrics.OPTIONAL_KEYS  # every run logs the first; some the second
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
@@ -150,7 +138,7 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
     wind and seed only the one that started last is kept."""
     rows, notes, available = [], [], set()
     for run in _all_runs(client, exp_id):
-        tags, params, metrics = run.data.tags, run.data.params, run.data.metrics
+        tags, params, logged = run.data.tags, run.data.params, run.data.metrics
         if not matches_sweep(tags.get("sweep", ""), sweep):
             continue
         available.update(params)
@@ -164,11 +152,11 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
-        row.update({key: metrics.get(key, np.nan) for key in EVAL_KEYS})
+        row.update({key: logged.get(key, np.nan) for key in EVAL_KEYS})
         if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's
-            row.update({f"eval/{f}": np.nan for f in EVAL_FIELDS})
+            row.update({metrics.eval_key("final", f.name): np.nan for f in metrics.EVAL_FIELDS})
         row.update({key: by_value(params, key) for key in by})
-        row["logged"] = frozenset(metrics)
+        row["logged"] = frozenset(logged)
         rows.append(row)
     if available:
         check_keys(list(by), available)

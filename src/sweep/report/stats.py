@@ -23,6 +23,8 @@ import pandas as pd
 from rliable import metrics
 from scipy import stats
 
+from sweep.metrics import AT_BOUND, FINALS, REWARD  # FINALS: per-run column -> the curve whose final value it holds
+
 RESAMPLES = 2000
 FINAL_FRACTION = 0.1  # "final" value of a curve: mean over the last 10% of the run's timesteps
 RNG_SEED = 0
@@ -88,9 +90,6 @@ def collapse(values: np.ndarray) -> float:
     return float((s.cummax() - s).max()) if len(s) else np.nan
 
 
-FINALS = {"final_reward": "rollout/ep_rew_mean", "final_dormant": "plasticity/dormant_ratio",
-          "final_saturated": "plasticity/saturated_ratio", "final_weight_norm": "plasticity/weight_norm",
-          "final_dead_tanh": "plasticity/dead_tanh_ratio", "final_signed_mean": "plasticity/signed_mean_ratio"}
 
 
 def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
@@ -103,8 +102,8 @@ def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
         for column, key in FINALS.items():
             k = h[h["key"] == key]
             row[column] = final_value(k["step"].to_numpy(), k["value"].to_numpy())
-        row["collapse"] = collapse(h.loc[h["key"] == "rollout/ep_rew_mean", "value"].to_numpy())
-        bound = h.loc[h["key"] == "recom/at_bound", "value"]
+        row["collapse"] = collapse(h.loc[h["key"] == REWARD, "value"].to_numpy())
+        bound = h.loc[h["key"] == AT_BOUND, "value"]
         row["at_bound"] = float(bound.mean()) if len(bound) else np.nan
         rows.append(row)
     return pd.DataFrame(rows, columns=["run_id", *FINALS, "collapse", "at_bound"])
@@ -115,7 +114,7 @@ def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame
     ``rollout/ep_rew_mean`` logged at steps in (k S, (k+1) S] (a value logged at the end of a rollout covers the
     episodes that rollout finished; a rollout that ends past total_timesteps counts in the last segment). Columns run_id, segment, start, end, speed, reward."""
     rows = []
-    rewards = histories[histories["key"] == "rollout/ep_rew_mean"]
+    rewards = histories[histories["key"] == REWARD]
     for run in runs.itertuples():
         h = rewards[rewards["run_id"] == run.run_id]
         length = run.segment_steps

@@ -7,15 +7,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sweep.report import load, stats
+from sweep import metrics
+from sweep.metrics import CURVES, FINALS, TABLE3
+from sweep.report import stats
 from sweep.report.conditions import Conditions, baseline_of
 
-# Table III's metrics: (field of the eval/* keys, scale, column title before the policy, unit, digits shown).
-TABLE3 = [("success_rate", 100.0, "Success", "(%)", 0),
-          ("mse_x", 1.0, "MSE x", "(m²)", 2),
-          ("mse_y", 1.0, "MSE y", "(m²)", 2),
-          ("mse_z", 1.0, "MSE z", "(m²)", 2)]
-# The policies scored at the end of a run (load.POLICIES) -> the suffix of their CSV columns. The tables show
+# The policies scored at the end of a run (metrics.POLICIES) -> the suffix of their CSV columns. The tables show
 # "final" and "best" side by side; "best_eval" (kept at the highest in-training eval return) is in the CSVs only.
 SUFFIX = {"final": "", "best": "_best", "best_eval": "_best_eval"}
 SHOWN = ("final", "best")
@@ -79,7 +76,7 @@ def top_seed(g: pd.DataFrame) -> pd.Series | None:
 
 def _key(policy: str, field: str) -> str:
     """The runs' column of ``field`` (e.g. success_rate) as ``policy`` was scored: eval/…, eval_best/…"""
-    return f"{load.POLICIES[policy]}/{field}"
+    return metrics.eval_key(policy, field)
 
 
 def _cell(mean: float, half: float, n: int, seeds: int, digits: int) -> str:
@@ -113,24 +110,24 @@ def table3(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions) -> tupl
         num = {**_identity(conds, cond, wind), "n_seeds": len(g)}
         shown = {"Control policy": cond, "Training wind": wind, "Seeds": len(g)}
         for policy, suffix in SUFFIX.items():
-            for field, scale, _, _, _ in TABLE3:
-                mean, half, n = stats.mean_t_ci(g[_key(policy, field)] * scale)
-                num[f"{field}{suffix}_mean"], num[f"{field}{suffix}_ci95"] = mean, half
+            for f in TABLE3:
+                mean, half, n = stats.mean_t_ci(g[_key(policy, f.name)] * f.scale)
+                num[f"{f.name}{suffix}_mean"], num[f"{f.name}{suffix}_ci95"] = mean, half
             num[f"n_seeds{suffix or '_final'}"] = int(g[_key(policy, "success_rate")].notna().sum())
         for policy in ("best", "best_eval"):
-            for field in load.SOURCE_FIELDS:
+            for field in metrics.SOURCE_FIELDS:
                 num[f"{field}{SUFFIX[policy]}_mean"] = float(g[_key(policy, field)].mean())
-        for field, scale, title, unit, digits in TABLE3:
+        for f in TABLE3:
             for policy in SHOWN:
                 suffix = SUFFIX[policy]
-                shown[f"{title} {policy} {unit}"] = _cell(num[f"{field}{suffix}_mean"], num[f"{field}{suffix}_ci95"],
-                                                          num[f"n_seeds{suffix or '_final'}"], len(g), digits)
+                shown[f"{f.title} {policy} {f.unit}"] = _cell(num[f"{f.name}{suffix}_mean"], num[f"{f.name}{suffix}_ci95"],
+                                                              num[f"n_seeds{suffix or '_final'}"], len(g), f.digits)
         shown["Best taken at (step)"] = source_step(g)[1]
         top = top_seed(g)
         num["top_seed"] = int(top["seed"]) if top is not None else np.nan
         num["top_seed_final_reward"] = top["final_reward"] if top is not None else np.nan
-        for field, scale, _, _, _ in TABLE3:
-            num[f"top_seed_{field}"] = top[_key("final", field)] * scale if top is not None else np.nan
+        for f in TABLE3:
+            num[f"top_seed_{f.name}"] = top[_key("final", f.name)] * f.scale if top is not None else np.nan
         shown["Top seed"] = num["top_seed"] if top is not None else "–"
         shown["Top seed: success final (%)"] = _pm(num["top_seed_success_rate"], np.nan, 0)
         shown["Top seed: MSE x/y/z final (m²)"] = (
@@ -159,10 +156,7 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
         iqm, iqm_lo, iqm_hi = stats.iqm_ci(g["final_reward"])
         poi = stats.poi_ci(g["final_reward"], scores(ppo)) if ppo is not None else (np.nan,) * 3
         num = {**_identity(conds, cond, wind), "n_seeds": len(g),
-               "final_reward": g["final_reward"].mean(), "final_dormant_ratio": g["final_dormant"].mean(),
-               "final_saturated_ratio": g["final_saturated"].mean(), "final_weight_norm": g["final_weight_norm"].mean(),
-               "final_dead_tanh_ratio": g["final_dead_tanh"].mean(),
-               "final_signed_mean_ratio": g["final_signed_mean"].mean(),
+               **{column: g[column].mean() for column in FINALS},
                "collapse": g["collapse"].mean(), "lr_at_bound_pct": 100 * g["at_bound"].mean(),
                **{f"eval{SUFFIX[p]}_{what}_pct": 100 * g[_key(p, f"{what}_rate")].mean()
                   for p in SUFFIX for what in ("success", "crash")},
@@ -171,12 +165,7 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                "iqm_final_reward": iqm, "iqm_ci_low": iqm_lo, "iqm_ci_high": iqm_hi,
                "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1], "p_improve_ci_high": poi[2]}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
-                 "Final reward": f"{num['final_reward']:.1f}",
-                 "Final dormant (%)": f"{100 * num['final_dormant_ratio']:.2f}",
-                 "Final saturated (%)": _fixed(100 * num["final_saturated_ratio"], 2),
-                 "Final dead tanh (%)": _fixed(100 * num["final_dead_tanh_ratio"], 2),
-                 "Final signed-mean≈0 (%)": _fixed(100 * num["final_signed_mean_ratio"], 2),
-                 "Final weight norm": _fixed(num["final_weight_norm"], 1),
+                 **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in CURVES if c.final},
                  "Collapse": f"{num['collapse']:.1f}",
                  "LR at bound (%)": _fixed(num["lr_at_bound_pct"], 0),
                  **{f"Eval {what} {p} (%)": _cell(num[f"eval{SUFFIX[p]}_{what}_pct"], np.nan,

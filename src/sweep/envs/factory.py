@@ -1,0 +1,26 @@
+"""The hover env of an ``env`` config (conf/config.yaml ``env:``), for training and for evaluation."""
+from __future__ import annotations
+
+from omegaconf import DictConfig
+
+from sweep.envs.hover import HoverVecEnv
+from sweep.envs.reward import HoverReward
+from sweep.envs.wind import WindSchedule
+
+
+def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False) -> HoverVecEnv:
+    """The hover env of ``env_cfg`` with ``n_envs`` vehicles; the reward it returns is scaled by
+    ``env.reward_scale`` only for a learner (``learning=True``): evaluations see the task's reward."""
+    return HoverVecEnv(
+        n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
+        sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
+        world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
+        observation=env_cfg.observation, time_limit=env_cfg.time_limit,
+        observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
+        seed=seed)
+
+
+def wind_schedule(wind_cfg: DictConfig) -> WindSchedule:
+    """The training wind of a ``wind`` config (conf/wind/*.yaml)."""
+    return WindSchedule(speeds=list(wind_cfg.speeds), segment_steps=wind_cfg.segment_steps,
+                        after_list=wind_cfg.after_list, direction=list(wind_cfg.direction), name=wind_cfg.name)
