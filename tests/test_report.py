@@ -34,10 +34,7 @@ SWEEP = ["-m", "agent=ppo,recom_l2", "agent.l2.coef=0.001,0.01", "seed=0,1", "wi
          "eval.episodes=2", "eval.every_timesteps=512", "tracking.log_model=false", "train.progress_every_s=1000",
          f"tracking.experiment={EXPERIMENT}", "hydra.launcher.n_jobs=2"]
 BY = ["--by", "agent.l2.coef", "--baseline", "agent=ppo"]
-CURVE_METRICS = {"reward": "rollout/ep_rew_mean", "episode_length": "rollout/ep_len_mean",
-                 "dormant": "plasticity/dormant_ratio", "weight_norm": "plasticity/weight_norm",
-                 "learning_rate": "train/learning_rate", "eval_success": "eval/success_rate",
-                 "eval_crash": "eval/crash_rate", "ppo_update": "train/std"}
+CURVE_METRICS = {stem: panels[0].key for stem, panels in figures.CURVES.items()}  # figure -> its first panel
 SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
 ARTIFACTS = {"final": "eval_trajectories.npz", "best": "eval_best_trajectories.npz"}  # the flights (sweep.run)
 TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv", "segments.md", "segments.csv"]
@@ -126,6 +123,11 @@ def final(history) -> float:
     """Mean of the values in the last 10% of the run's logged timesteps."""
     steps, values = history
     return float(values[steps >= steps[-1] - 0.1 * (steps[-1] - steps[0])].mean())
+
+
+def g_final(hand: pd.DataFrame, condition: str) -> np.ndarray:
+    """Final training rewards of a condition's seeds."""
+    return hand.loc[hand["condition"] == condition, "reward"].map(final).to_numpy()
 
 
 def collapse(history) -> float:
@@ -402,13 +404,22 @@ def test_summary_equals_a_hand_computation_from_the_histories(store, report):
         assert row["eval_crash_pct"] == pytest.approx(100 * g["eval/crash_rate"].mean())
         assert row["eval_best_success_pct"] == pytest.approx(100 * g["eval_best/success_rate"].mean())
         assert row["eval_best_crash_pct"] == pytest.approx(100 * g["eval_best/crash_rate"].mean())
-        assert row["iqm_ci_low"] <= row["iqm_final_reward"] <= row["iqm_ci_high"]
+        # two seeds: rliable's IQM (a 25% trimmed mean) trims nothing, and a percentile bootstrap of 2 values
+        # resamples {a, a} a quarter of the time, so the 2.5% and 97.5% points are the two seeds themselves
+        scores = g["reward"].map(final)
+        assert len(scores) == 2 and row["iqm_final_reward"] == pytest.approx(scores.mean())
+        assert (row["iqm_ci_low"], row["iqm_ci_high"]) == pytest.approx((scores.min(), scores.max()))
         shares = [v.mean() for _, v in g["at_bound"] if len(v)]
         if g["agent"].iloc[0] == "recom_l2":
             assert len(shares) == 2 and row["lr_at_bound_pct"] == pytest.approx(100 * np.mean(shares))
         else:
             assert not shares and np.isnan(row["lr_at_bound_pct"])
-    assert 0.0 <= summary.loc["RECOM + L2 PPO (coef=0.01)", "p_improve_over_ppo"] <= 1.0
+    ppo = g_final(hand, "PPO")
+    for cond in ["RECOM + L2 PPO (coef=0.001)", "RECOM + L2 PPO (coef=0.01)"]:
+        recom = g_final(hand, cond)
+        # Mann-Whitney by hand: the share of (RECOM seed, PPO seed) pairs RECOM wins, ties counting a half
+        wins = np.mean([1.0 if x > y else 0.5 if x == y else 0.0 for x in recom for y in ppo])
+        assert summary.loc[cond, "p_improve_over_ppo"] == pytest.approx(wins)
     assert np.isnan(summary.loc["PPO", "p_improve_over_ppo"])
 
 
@@ -441,7 +452,10 @@ def test_baseline_is_the_iqm_difference_to_the_matching_condition(store, report)
         assert row["baseline"] == "PPO"  # PPO's L2 coefficient does not apply: it is the baseline of both
         delta, low, high = (float(row[c]) for c in ("delta_iqm", "delta_iqm_ci_low", "delta_iqm_ci_high"))
         assert delta == pytest.approx(iqm[cond] - iqm["PPO"])
-        assert low <= delta <= high and low < high
+        # two seeds each: the bootstrap's 2.5% point is the worst pairing (both resamples at their extremes,
+        # probability 1/16), the 97.5% point the best one
+        x, y = g_final(hand, cond), g_final(hand, "PPO")
+        assert (low, high) == pytest.approx((x.min() - y.max(), x.max() - y.min())) and low < high
     shown = md_table(out / "summary.md").set_index("Agent")["Δ IQM vs agent=ppo [95% CI]"]
     row = summary.loc["RECOM + L2 PPO (coef=0.01)"]
     assert shown.loc["PPO"] == "" and shown.loc["RECOM + L2 PPO (coef=0.01)"] == (
@@ -458,7 +472,9 @@ def test_baseline_is_the_iqm_difference_to_the_matching_condition(store, report)
     row = by_coef.loc["RECOM + L2 PPO (coef=0.01)"]
     assert row["baseline"] == "RECOM + L2 PPO (coef=0.001)"
     assert row["delta_iqm"] == pytest.approx(iqm["RECOM + L2 PPO (coef=0.01)"] - iqm["RECOM + L2 PPO (coef=0.001)"])
-    assert row["delta_iqm_ci_low"] <= row["delta_iqm"] <= row["delta_iqm_ci_high"]
+    x, y = g_final(hand, "RECOM + L2 PPO (coef=0.01)"), g_final(hand, "RECOM + L2 PPO (coef=0.001)")
+    assert (row["delta_iqm_ci_low"], row["delta_iqm_ci_high"]) == pytest.approx((x.min() - y.max(),
+                                                                                x.max() - y.min()))
     assert "Δ IQM vs agent.l2.coef=0.001 [95% CI]" in display.columns
 
 
@@ -477,6 +493,58 @@ def test_hand_logged_runs_give_the_chosen_best_seed_and_bound_share(hand_report)
     assert summary.loc["recom_l2", "final_reward"] == pytest.approx(np.mean([-22.5, -15.0, -30.0]))
     assert summary.loc["recom_l2", "final_dormant_ratio"] == pytest.approx(0.01)
     assert np.isnan(summary.loc["recom_l2", "final_saturated_ratio"])
+
+
+def test_hand_logged_improvement_over_ppo_is_certain_and_its_iqm_the_middle_seed(hand_report):
+    """Every RECOM seed's final reward (-22.5, -15, -30) beats every PPO seed's (-41, -46.25): P(RECOM > PPO) is
+    exactly 1 and so is every bootstrap resample of it; with three seeds the 25% trimmed mean trims nothing
+    (int(0.75) = 0), so the IQM is their mean, -22.5. (Comparing the wrong way round gives 0, counting ties or
+    losses as wins anything but exactly 1.)"""
+    out, _ = hand_report
+    summary = pd.read_csv(out / "summary.csv").set_index("agent")
+    recom = summary.loc["recom_l2"]
+    assert (recom["p_improve_over_ppo"], recom["p_improve_ci_low"], recom["p_improve_ci_high"]) == (1.0, 1.0, 1.0)
+    assert recom["iqm_final_reward"] == pytest.approx(-22.5)
+    assert (recom["iqm_ci_low"], recom["iqm_ci_high"]) == pytest.approx((-30.0, -15.0))  # 1/27 all-worst, all-best
+    assert np.isnan(summary.loc["ppo", "p_improve_over_ppo"])
+    shown = md_table(out / "summary.md").set_index("Agent")
+    assert shown.loc["RECOM + L2 PPO", "P(> PPO) [95% CI]"] == "1.00 [1.00, 1.00]"
+
+
+def test_probability_of_improvement_on_hand_built_scores():
+    # every x above every y: 1, with a degenerate CI; interleaved (1 < 2, 3 < 4): 2 of 4 pairs won -> 0.5
+    assert stats.poi_ci([5.0, 6.0, 7.0], [1.0, 2.0]) == (1.0, 1.0, 1.0)
+    assert stats.poi_ci([1.0, 4.0], [2.0, 3.0])[0] == 0.5
+    assert stats.poi_ci([1.0, 2.0], [3.0, 4.0])[0] == 0.0
+    # ties count a half: all-equal scores give 0.5, and so does every resample of them
+    assert stats.poi_ci([2.0, 2.0, 2.0], [2.0, 2.0]) == (0.5, 0.5, 0.5)
+    # one run per side: the point, no interval; NaN scores are left out
+    point, low, high = stats.poi_ci([3.0, np.nan], [1.0])
+    assert point == 1.0 and np.isnan(low) and np.isnan(high)
+
+
+def test_iqm_and_its_interval_on_hand_built_scores():
+    """IQM of 12 scores = mean of the middle six, whatever the two outliers. The CI against an independent
+    percentile bootstrap written here in NumPy (its own generator, 20,000 resamples, IQM by sorting): the two
+    estimate the same quantiles to ~0.2, while a 90% or a 99% interval would be >= 0.5 off at one end."""
+    x = np.array([2.0, 9.0, 4.0, 100.0, 7.0, 1.0, 5.0, 8.0, 3.0, 6.0, -50.0, 10.0])
+    point, low, high = stats.iqm_ci(x)
+    assert point == pytest.approx((3.0 + 4.0 + 5.0 + 6.0 + 7.0 + 8.0) / 6)
+    rng = np.random.default_rng(12345)
+    resamples = np.sort(x[rng.integers(0, len(x), size=(20_000, len(x)))], axis=1)
+    iqms = resamples[:, 3:9].mean(axis=1)
+    ref_low, ref_high = np.percentile(iqms, [2.5, 97.5])
+    assert low == pytest.approx(ref_low, abs=0.25) and high == pytest.approx(ref_high, abs=0.25)
+    # two runs: nothing is trimmed, and the 95% percentile interval is the two runs themselves
+    assert stats.iqm_ci([-3.0, 5.0]) == pytest.approx((1.0, -3.0, 5.0))
+
+
+def test_iqm_difference_interval_on_hand_built_scores():
+    # two runs per side: the interval spans the worst pairing to the best (each has probability 1/16 > 2.5%)
+    assert stats.iqm_diff_ci([10.0, 14.0], [1.0, 3.0]) == pytest.approx((12.0 - 2.0, 10.0 - 3.0, 14.0 - 1.0))
+    # identical samples: a difference of exactly 0, but not a zero-width interval
+    point, low, high = stats.iqm_diff_ci([1.0, 2.0, 3.0, 4.0], [1.0, 2.0, 3.0, 4.0])
+    assert point == 0.0 and low < 0.0 < high
 
 
 # Hand-logged end-of-run evaluations, per agent the values of seeds 0, 1, 2 (None: that seed did not score that
