@@ -136,12 +136,53 @@ def test_submitit_local_launcher(tmp_path):
     assert sorted(r.data.tags["seed"] for r in runs) == ["0", "1"] and all(r.info.status == "FINISHED" for r in runs)
 
 
-def test_slurm_preset_composes():
+def test_slurm_preset_composes(tmp_path, monkeypatch):
+    """hydra/launcher=slurm with the paper study composes into hydra-submitit's SlurmLauncher, and that launcher,
+    given the study's jobs, builds the sbatch script the preset promises: 1 CPU and 2 GB per run, 48 h, an array
+    of at most 32 runs at once, one thread per library, all jobs (the sweep's 30) in one array. The cluster is
+    faked only where submitit touches it: ``srun`` must exist, and the array is captured instead of submitted."""
+    import submitit
     from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
 
     from conftest import CONF
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=["hydra/launcher=slurm"], return_hydra_config=True)
-    launcher = cfg.hydra.launcher
-    assert launcher._target_.endswith("SlurmLauncher") and launcher.cpus_per_task == 1
+        cfg = compose(config_name="config", overrides=["experiment=paper", "hydra/launcher=slurm",
+                                                       f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+                      return_hydra_config=True)
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "srun").write_text("#!/bin/sh\nexit 0\n")
+    (bin_dir / "srun").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    submitted = {}
+
+    def capture(executor, fn, *args):
+        submitted.update(executor=executor, fn=fn, args=args)
+        return []
+
+    monkeypatch.setattr(submitit.AutoExecutor, "map_array", capture)
+    launcher = instantiate(cfg.hydra.launcher)
+    assert type(launcher).__name__ == "SlurmLauncher"
+    launcher.config = cfg  # what Hydra's setup() gives it; only the sweep dir is read before submitting
+    params = dict(cfg.hydra.sweeper.params)
+    jobs = [[f"wind={w}", f"seed={s}", f"agent={a}"] for w in params["wind"].split(",")
+            for s in params["seed"].split(",") for a in params["agent"].split(",")]
+    assert launcher.launch(jobs, initial_job_idx=0) == []
+    overrides, _, indices = submitted["args"][:3]
+    assert len(overrides) == 30 and list(indices) == list(range(30)) and submitted["fn"] is launcher
+    slurm = submitted["executor"]._executor
+    slurm.parameters["map_count"] = len(overrides)  # what submitit sets when it submits the array
+    script = slurm._make_submission_file_text("python -u -m submitit.core._submit <folder>", "uid")
+    sbatch = {line.split("=", 1)[0]: line.split("=", 1)[1] for line in script.splitlines()
+              if line.startswith("#SBATCH ") and "=" in line}
+    assert sbatch["#SBATCH --cpus-per-task"] == "1" and sbatch["#SBATCH --ntasks-per-node"] == "1"
+    assert sbatch["#SBATCH --nodes"] == "1" and sbatch["#SBATCH --mem"] == "2GB"
+    assert sbatch["#SBATCH --time"] == "2880" and sbatch["#SBATCH --array"] == "0-29%30"
+    assert "#SBATCH --partition" not in sbatch  # null: the cluster's default unless set
+    assert "export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 MLFLOW_DISABLE_TELEMETRY=true" in script.splitlines()
+    assert sbatch["#SBATCH --output"].startswith(str(tmp_path / "sweep" / ".submitit"))
+    # more runs than array_parallelism: at most 32 at once
+    slurm.parameters["map_count"] = 40
+    assert "#SBATCH --array=0-39%32" in slurm._make_submission_file_text("cmd", "uid").splitlines()
