@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from sweep.envs.backends import make_backend
-from sweep.envs.backends.fast import FastBackend, _numba
+from sweep.envs.backends.fast import FastBackend
 from sweep.envs.backends.rotorpy_backend import RotorPyBackend, RotorPyRK4Backend
 from sweep.envs.hover import HoverVecEnv
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
@@ -32,7 +32,6 @@ DT = 0.01
 KEYS = ("x", "v", "q", "w", "rotor_speeds")
 TOL_RK4 = {"x": 1e-6, "v": 1e-6, "q": 1e-8, "w": 1e-6, "rotor_speeds": 1e-6}
 TOL_IVP = {"x": 1e-3, "v": 1e-3, "q": 1e-4, "w": 1e-3, "rotor_speeds": 5e-2}
-USE_NUMBA = [False] + ([True] if _numba is not None else [])
 
 
 def _scenario(n: int, steps: int, seed: int, noise: tuple[float, float]):
@@ -68,20 +67,11 @@ def _check(diff, tol, ref):
 
 
 def test_matches_rotorpy_derivative_rk4_hover_noise():
-    """32 sequences of 500 steps, hover +- 0.05..0.2 % white noise (the sane regime); the NumPy and the
-    numba path side by side against one reference run."""
+    """32 sequences of 500 steps, hover +- 0.05..0.2 % white noise (the sane regime)."""
     n, steps = 32, 500
     p, wind, cmds, start = _scenario(n, steps, seed=0, noise=(0.0005, 0.002))
-    ref = RotorPyRK4Backend(n, p, DT)
-    fasts = [FastBackend(n, p, DT, use_numba=u) for u in USE_NUMBA]
-    for b in (ref, *fasts):
-        b.set_state(start)
-    for t in range(steps):
-        ref.step(cmds[:, t], wind)
-        for f in fasts:
-            f.step(cmds[:, t], wind)
-    for f in fasts:
-        _check({k: np.abs(getattr(f, k) - getattr(ref, k)).max() for k in KEYS}, TOL_RK4, ref)
+    diff, ref = _run_pair(FastBackend(n, p, DT), RotorPyRK4Backend(n, p, DT), wind, cmds, start)
+    _check(diff, TOL_RK4, ref)
     # a sane regime: upright, slow rotation (open loop, so the wind still blows them up to ~25 m away)
     assert np.all(1.0 - 2.0 * (ref.q[:, 0] ** 2 + ref.q[:, 1] ** 2) > 0.0)
     assert np.abs(ref.w).max() < 2.0
@@ -97,8 +87,7 @@ def test_matches_rotorpy_derivative_rk4_aggressive():
     assert np.abs(ref.w).max() > 5.0
 
 
-@pytest.mark.parametrize("use_numba", USE_NUMBA)
-def test_all_aero_terms_against_rk4(use_numba):
+def test_all_aero_terms_against_rk4():
     """k_h, k_flap and parasitic drag are zero for the Crazyflie: switch them on to test those terms too,
     with a non-diagonal inertia and a commanded speed outside [min, max] (clipped as in RotorPy)."""
     p, wind, cmds, start = _scenario(8, 200, seed=2, noise=(0.0005, 0.002))
@@ -107,12 +96,12 @@ def test_all_aero_terms_against_rk4(use_numba):
               "Ixy": 1e-7, "Ixz": -2e-7, "Iyz": 5e-8, "rotor_speed_min": 200})
     cmds[0, :20, 0] = 3000.0  # above rotor_speed_max
     cmds[1, :20, 1] = 0.0  # below rotor_speed_min
-    diff, ref = _run_pair(FastBackend(8, p, DT, use_numba=use_numba), RotorPyRK4Backend(8, p, DT),
+    diff, ref = _run_pair(FastBackend(8, p, DT), RotorPyRK4Backend(8, p, DT),
                           wind, cmds, start)
     _check(diff, TOL_RK4, ref)
     # the extra terms matter: the Crazyflie model without them is far off
     base = crazyflie_params(0.05)
-    plain = FastBackend(8, base, DT, use_numba=use_numba)
+    plain = FastBackend(8, base, DT)
     plain.set_state(start)
     for t in range(cmds.shape[1]):
         plain.step(cmds[:, t], wind)

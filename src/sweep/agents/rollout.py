@@ -11,7 +11,7 @@ with ``ActorCriticPolicy`` (Gaussian, state-independent std):
   ``reward_scale``;
 * a truncated episode's reward gets + gamma V(terminal observation) (SB3's timeout bootstrap).
 
-The env step is the env's own compiled pieces: the fast backend's ``_step_loop`` (physics) and
+The env step is the env's own compiled pieces: the fast backend's ``step_vehicles`` (physics) and
 ``task_outcome`` (observation, reward, termination), so the task is the one ``HoverVecEnv.step`` runs.
 ``gae`` is SB3's ``RolloutBuffer.compute_returns_and_advantage``.
 
@@ -28,7 +28,7 @@ import math
 import numba
 import numpy as np
 
-from sweep.envs.backends.fast import _step_loop
+from sweep.envs.backends.fast import step_vehicles
 from sweep.envs.hover import task_outcome
 
 LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -91,7 +91,7 @@ def mlp(x, weights, biases, scales, shifts, relu, layer_norm, h_in, h_out, out):
 def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
         pi_w, pi_b, pi_g, pi_c, vf_w, vf_b, vf_g, vf_c, log_std, relu, layer_norm, gamma,
         buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
-        x, v, q, w, rotor_speeds, dt, geo, rdir, inertia, inv_inertia, c_d, scal, speed_min, speed_max,
+        vehicles, physics,
         t_idx, ep_return, reward_scale, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
         w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, rewards, crashed, terminated, truncated):
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
@@ -116,6 +116,8 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
     cmd = np.empty((n, n_act))
     clipped = np.empty((n, n_act), np.float32)
     wind_now = np.empty((n, 3))
+    speed_min, speed_max = physics.speed_min, physics.speed_max
+    x, v, q, w = vehicles.x, vehicles.v, vehicles.q, vehicles.w
     while t < n_steps:
         for i in range(n):
             mlp(obs[i], pi_w, pi_b, pi_g, pi_c, relu, layer_norm, h_in, h_out, mean)
@@ -136,8 +138,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
                 buf_obs[t, i, k] = obs[i, k]
             for k in range(3):
                 wind_now[i, k] = wind[t, k]
-        _step_loop(x, v, q, w, rotor_speeds, cmd, wind_now, dt, geo, rdir, inertia, inv_inertia, c_d, scal,
-                   speed_min, speed_max)
+        step_vehicles(vehicles, cmd, wind_now, physics)
         task_outcome(x, v, q, w, clipped, t_idx, episode_steps, world_bound, terminate_at_limit, euler, v_scale,
                      w_scale, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, obs, rewards, crashed,
                      terminated, truncated)

@@ -150,9 +150,9 @@ class HoverVecEnv(VecEnv):
         """What a compiled loop needs to step this env itself: the fast backend's state and physics
         constants, then ``task_outcome``'s (see ``sweep.agents.rollout``)."""
         s = self.sim
-        if not hasattr(s, "kernel_args"):
+        if not hasattr(s, "physics"):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
-        return (s.x, s.v, s.q, s.w, s.rotor_speeds, *s.kernel_args, self.t_idx, self.ep_return, self.reward_scale,
+        return (s.vehicles, s.physics, self.t_idx, self.ep_return, self.reward_scale,
                 *self._task_args, self._rewards, self._crashed, self._terminated, self._truncated)
 
     # ---- task pieces -------------------------------------------------------------------------

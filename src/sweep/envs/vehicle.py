@@ -10,6 +10,8 @@ import copy
 import numpy as np
 from rotorpy.vehicles.crazyflie_params import quad_params as _CRAZYFLIE
 
+GRAVITY = 9.81  # m/s^2, RotorPy's Multirotor.g
+
 
 def crazyflie_params(motor_time_constant: float | None = 0.05) -> dict:
     params = copy.deepcopy(_CRAZYFLIE)
@@ -20,4 +22,4 @@ def crazyflie_params(motor_time_constant: float | None = 0.05) -> dict:
 
 def hover_rotor_speed(params: dict) -> float:
     """Rotor speed (rad/s) whose total thrust equals the weight: m g = 4 k_eta w^2."""
-    return float(np.sqrt(params["mass"] * 9.81 / (params["num_rotors"] * params["k_eta"])))
+    return float(np.sqrt(params["mass"] * GRAVITY / (params["num_rotors"] * params["k_eta"])))
