@@ -5,12 +5,13 @@ import numpy as np
 import pytest
 
 from sweep.envs import HoverVecEnv, WindSchedule
+from sweep.envs.hover import action_to_rotor_speed, rotor_speed_to_action
 from sweep.envs.reward import HoverReward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 
 
 def hover_action(env: HoverVecEnv) -> np.ndarray:
-    a = 2 * (env.hover_speed - env.speed_min) / (env.speed_max - env.speed_min) - 1
+    a = rotor_speed_to_action(env.hover_speed, env.speed_min, env.speed_max)
     return np.full((env.num_envs, 4), a, dtype=np.float32)
 
 
@@ -87,6 +88,20 @@ def test_crazyflie_params_from_rotorpy_with_paper_motor_constant():
     p = crazyflie_params(0.05)
     assert p["tau_m"] == 0.05 and p["mass"] == 0.03 and p["Ixx"] == 1.43e-5 and p["rotor_speed_max"] == 2500
     assert hover_rotor_speed(p) == pytest.approx(1788.5, abs=0.5)
+
+
+def test_action_to_rotor_speed_is_linear_onto_the_rotor_range_and_inverted_by_rotor_speed_to_action():
+    p = crazyflie_params(0.05)
+    lo, hi = float(p["rotor_speed_min"]), float(p["rotor_speed_max"])
+    a = np.linspace(-1.0, 1.0, 101)
+    speeds = action_to_rotor_speed.py_func(a, lo, hi)
+    assert (speeds[0], speeds[50], speeds[-1]) == (lo, (lo + hi) / 2, hi)
+    np.testing.assert_allclose(np.diff(speeds), (hi - lo) / 100, rtol=1e-9)
+    np.testing.assert_allclose(rotor_speed_to_action(speeds, lo, hi), a, atol=1e-12)
+    # the compiled rule (the rollout's, on the policy's float32 actions) is the env's NumPy rule bit for bit
+    a32 = np.random.default_rng(0).uniform(-1.0, 1.0, 1000).astype(np.float32)
+    compiled = np.array([action_to_rotor_speed(x, lo, hi) for x in a32])
+    np.testing.assert_array_equal(compiled, action_to_rotor_speed.py_func(a32.astype(np.float64), lo, hi))
 
 
 BACKENDS = ["rotorpy", "fast"]

@@ -24,7 +24,7 @@ import pytest
 from sweep.envs.backends import make_backend
 from sweep.envs.backends.fast import FastBackend
 from sweep.envs.backends.rotorpy_backend import RotorPyBackend, RotorPyRK4Backend
-from sweep.envs.hover import HoverVecEnv
+from sweep.envs.hover import HoverVecEnv, rotor_speed_to_action
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 
@@ -131,7 +131,7 @@ def test_hover_env_fast_equals_rotorpy_rk4():
     obs = [e.reset() for e in envs]
     np.testing.assert_array_equal(obs[0], obs[1])
     p = crazyflie_params(0.05)
-    a_hover = 2.0 * hover_rotor_speed(p) / p["rotor_speed_max"] - 1.0
+    a_hover = rotor_speed_to_action(hover_rotor_speed(p), p["rotor_speed_min"], p["rotor_speed_max"])
     rng = np.random.default_rng(7)
     n_term = n_trunc = 0
     for t in range(steps):

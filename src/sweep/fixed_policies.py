@@ -24,6 +24,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from sweep.envs import HoverVecEnv, WindSchedule
+from sweep.envs.hover import rotor_speed_to_action
 from sweep.envs.factory import make_env
 from sweep.evaluate import flight_metrics, fly
 
@@ -40,7 +41,7 @@ class FixedPolicy:
 
 def to_action(env: HoverVecEnv, rotor_speeds) -> np.ndarray:
     """Rotor speeds (rad/s) -> actions in [-1, 1] (the inverse of the env's linear mapping)."""
-    return (2.0 * (np.asarray(rotor_speeds) - env.speed_min) / (env.speed_max - env.speed_min) - 1.0).astype(np.float32)
+    return rotor_speed_to_action(np.asarray(rotor_speeds), env.speed_min, env.speed_max).astype(np.float32)
 
 
 def constant(speed):

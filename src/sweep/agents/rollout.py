@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from sweep.envs.backends.fast import step_vehicles
-from sweep.envs.hover import task_outcome
+from sweep.envs.hover import action_to_rotor_speed, task_outcome
 
 LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -129,7 +129,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
                 buf_actions[t, i, a] = action
                 c = min(max(action, np.float32(-1.0)), np.float32(1.0))
                 clipped[i, a] = c
-                cmd[i, a] = speed_min + (c + 1.0) * 0.5 * (speed_max - speed_min)
+                cmd[i, a] = action_to_rotor_speed(c, speed_min, speed_max)
                 log_prob -= 0.5 * eps * eps
             buf_log_probs[t, i] = log_prob - log_norm
             buf_values[t, i] = value[0]

@@ -10,7 +10,7 @@
 * ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
   (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
-  RotorPy's ``cmd_motor_speeds`` mode.
+  RotorPy's ``cmd_motor_speeds`` mode (``action_to_rotor_speed``; its inverse ``rotor_speed_to_action``).
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
   RotorPy's gym env). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100).
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
@@ -37,6 +37,19 @@ from sweep.envs.wind import WindSchedule
 OBSERVATIONS = ("quaternion", "euler")
 TIME_LIMITS = ("truncate", "terminate")
 SAFE_SPEED, SAFE_RATE = 100.0, 100.0  # m/s, rad/s: RotorPy's safety_exit bounds
+
+
+@numba.njit(cache=True, inline="always")
+def action_to_rotor_speed(action, speed_min, speed_max):
+    """Action in [-1, 1] (already clipped) -> commanded rotor speed (rad/s), linearly: RotorPy's
+    ``cmd_motor_speeds`` mapping. Compiled for the rollout; ``action_to_rotor_speed.py_func`` is the same
+    rule evaluated by NumPy (on float64 arrays, as the env steps)."""
+    return speed_min + (action + 1.0) * 0.5 * (speed_max - speed_min)
+
+
+def rotor_speed_to_action(speed, speed_min, speed_max):
+    """Rotor speed (rad/s) -> the action ``action_to_rotor_speed`` maps to it (its inverse)."""
+    return 2.0 * (speed - speed_min) / (speed_max - speed_min) - 1.0
 
 
 @numba.njit(cache=True)
@@ -156,10 +169,6 @@ class HoverVecEnv(VecEnv):
                 *self._task_args, self._rewards, self._crashed, self._terminated, self._truncated)
 
     # ---- task pieces -------------------------------------------------------------------------
-    def actions_to_rotor_speeds(self, actions: np.ndarray) -> np.ndarray:
-        """Actions in [-1, 1] (already clipped) -> commanded rotor speeds, linearly (RotorPy's mapping)."""
-        return self.speed_min + (actions.astype(np.float64) + 1.0) * 0.5 * (self.speed_max - self.speed_min)
-
     def _wind_now(self) -> np.ndarray:
         """(N, 3) wind of the current global step, rebuilt only when the speed changes."""
         speed = self.wind.speed_at(self.global_step)
@@ -216,7 +225,8 @@ class HoverVecEnv(VecEnv):
 
     def step_wait(self):
         actions = np.clip(self._actions, -1.0, 1.0)
-        self.sim.step(self.actions_to_rotor_speeds(actions), self._wind_now())
+        cmd = action_to_rotor_speed.py_func(actions.astype(np.float64), self.speed_min, self.speed_max)
+        self.sim.step(cmd, self._wind_now())
         self.global_step += self.num_envs
         s = self.sim
         task_outcome(s.x, s.v, s.q, s.w, actions, self.t_idx, *self._task_args,
