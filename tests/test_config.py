@@ -16,10 +16,21 @@ WINDS = sorted(p.stem for p in (CONF / "wind").glob("*.yaml"))
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
 
+# agent YAML -> the remedies it switches on (their classes, in config order)
+REMEDIES = {"ppo": [], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
+            "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
+            "shrink_perturb": ["ShrinkPerturb"], "cbp_l2": ["L2Regularization", "ContinualBackprop"],
+            "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"], "ppo_target_kl": []}
+
+
 def test_groups_exist():
-    assert {"ppo", "l2", "recom_l2"} <= set(AGENTS)
+    assert set(AGENTS) == set(REMEDIES), "a new agent YAML needs its row in REMEDIES"
     assert {"none", "paper"} <= set(WINDS)
-    assert {"paper", "demo", "smoke"} <= set(EXPERIMENTS)
+    assert {"paper", "demo", "smoke", "remedies"} <= set(EXPERIMENTS)
+    remedy_blocks = {p.stem for p in (CONF / "remedy").glob("*.yaml")}
+    for agent in AGENTS:   # each agent names itself, has a legend label, and carries every remedy block
+        cfg = compose_cfg([f"agent={agent}"])
+        assert cfg.agent.name == agent and cfg.agent.label.strip() and remedy_blocks <= set(cfg.agent)
 
 
 @pytest.mark.parametrize("agent,wind,experiment", list(itertools.product(AGENTS, WINDS, [None, *EXPERIMENTS])))
@@ -28,8 +39,7 @@ def test_every_config_composes_and_validates(agent, wind, experiment):
     cfg = compose_cfg(overrides)
     validate(cfg)
     assert cfg.agent.name == agent and cfg.wind.name == wind
-    remedies = build_remedies(cfg.agent)
-    assert len(remedies) == {"ppo": 0, "l2": 1, "recom_l2": 2}.get(agent, len(remedies))
+    assert [type(r).__name__ for r in build_remedies(cfg.agent)] == REMEDIES[agent]
 
 
 def test_paper_wind_and_experiment():
@@ -63,6 +73,16 @@ INVALID = [
     ("agent.ppo.learning_rate=0", "agent.ppo.learning_rate=0"),
     ("agent.ppo.batch_size=4096", "agent.ppo.batch_size=4096"),
     ("seed=-1", "seed=-1"),
+    # types and choices the schema (sweep.config.SweepConfig) says
+    ("env.n_envs=1.5", "env.n_envs=1.5: must be an integer > 0"),
+    ("agent.policy.layer_norm=maybe", "agent.policy.layer_norm='maybe': must be true|false"),
+    ("agent.learner=torch", "agent.learner='torch': must be one of sb3|jax"),
+    ("eval.policy=worst", "eval.policy='worst': must be final|best|both"),
+    ("wind.after_list=loop", "wind.after_list='loop': must be repeat|hold"),
+    ("agent.ppo.target_kl=-1", "agent.ppo.target_kl=-1: must be a number > 0 or null (off)"),
+    # the JAX learner's own rules
+    ("agent.learner=jax env.backend=rotorpy", "env.backend='rotorpy': must be fast with agent.learner=jax"),
+    ("agent.learner=jax agent.ppo.n_steps=100", "agent.ppo.batch_size=64: must be a divisor of the rollout size"),
 ]
 
 
@@ -117,3 +137,27 @@ def test_every_config_key_is_in_the_readme():
         if not documented:
             missing.append(key)
     assert not missing, f"config keys missing from the README's configuration reference: {missing}"
+
+
+def test_a_key_outside_the_schema_is_named():
+    with pytest.raises(ConfigError, match=r"^env\.zzz: not a config key"):
+        validate(compose_cfg(["+env.zzz=1"]))
+
+
+def test_the_schema_is_in_hydras_config_store_and_types_every_key():
+    """compose(config_name="sweep_schema") gives the schema (every value ???); a composed config merged into it
+    keeps its values, typed: choices become the schema's Enums."""
+    from enum import Enum
+
+    from omegaconf import OmegaConf
+
+    schema = compose_cfg.__globals__["compose"]  # the test's Hydra compose, with the project's conf dir
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        empty = schema(config_name="sweep_schema")
+    assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent.recom, "gain")
+    OmegaConf.set_struct(empty.agent.learners, False)  # a Dict node: Hydra's struct flag would refuse new keys
+    typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=recom_l2"]), resolve=True))
+    assert isinstance(typed.agent.recom.gradient, Enum) and typed.agent.recom.gradient.value == "absolute"
+    assert typed.agent.recom.gain == 5e-6 and typed.env.n_envs == 1

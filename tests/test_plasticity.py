@@ -157,8 +157,6 @@ def test_recom_per_step_reward_reading():
     # t=200: per-step rewards -2, -2 with loss 2: C = 4. t=400: -2, -3 with loss 1: C = (3 + 4)/2 = 3.5; G = -0.5
     assert recom.logger.name_to_value["recom/cost"] == 3.5
     assert lrs[3] == pytest.approx(3e-4 + 0.5e-6)
-    with pytest.raises(ValueError, match="reward"):
-        Recom(reward="mean")
 
 
 def test_recom_shifted_window_and_clipping():

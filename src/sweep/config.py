@@ -1,212 +1,392 @@
-"""Validation of a composed config, in one place, before anything is trained or tracked.
+"""The config schema, in one place: every key's type, its allowed choices or range, and the rules across keys.
 
-Each rule names a key, what is allowed, and a check. ``validate(cfg)`` raises ``ConfigError`` with a
-one-line message for the first broken rule: ``train.total_timesteps=-5: must be an integer > 0``.
+``SweepConfig`` mirrors conf/ (conf/config.yaml, one agent YAML with its conf/remedy/ blocks, one wind YAML):
+the YAML files hold the values and their comments, the dataclasses below the types (an ``Enum`` for a
+choice) and, in each field's ``check``, the range a type cannot say. The schema is registered in Hydra's
+ConfigStore as ``sweep_schema`` (``compose(config_name="sweep_schema")`` gives it, every value ``???``).
+It is not in conf/config.yaml's defaults list: Hydra reports a schema error at composition in several lines
+with exit code 1, and a sweep must instead name the first bad key in one line and exit 2 before anything is
+trained or tracked. So ``validate(cfg)`` merges the composed config into the schema and raises
+``ConfigError``: ``train.total_timesteps=-5: must be an integer > 0``.
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+import re
+from dataclasses import dataclass, field, fields, is_dataclass
+from enum import Enum
+from typing import Any, Callable, Dict, List, Optional
 
-from omegaconf import DictConfig, OmegaConf
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, ValidationError
 
 
 class ConfigError(ValueError):
     """An invalid configuration value (message: key=value: what is allowed)."""
 
 
-_MISSING = object()
+# ---- choices ---------------------------------------------------------------------------------------------------
+def choice(name: str, *values: str) -> type[Enum]:
+    return Enum(name, {v: v for v in values})
 
 
-def _get(cfg: DictConfig, key: str) -> Any:
-    value = OmegaConf.select(cfg, key, default=_MISSING)
-    return OmegaConf.to_object(value) if OmegaConf.is_config(value) else value
+Backend = choice("Backend", "fast", "rotorpy", "rotorpy_rk4")
+Observation = choice("Observation", "quaternion", "euler")
+TimeLimit = choice("TimeLimit", "truncate", "terminate")
+AfterList = choice("AfterList", "repeat", "hold")
+Activation = choice("Activation", "tanh", "relu")
+LRSchedule = choice("LRSchedule", "constant", "linear", "cosine")
+DecayMode = choice("DecayMode", "coupled", "decoupled")
+ParamGroup = choice("ParamGroup", "policy", "value", "log_std")
+NetworkName = choice("NetworkName", "policy", "value")
+RecomPrevious = choice("RecomPrevious", "last_update", "shifted")
+RecomGradient = choice("RecomGradient", "absolute", "relative")
+RecomReward = choice("RecomReward", "return", "per_step")
+EvalPolicy = choice("EvalPolicy", "final", "best", "both")
 
 
-def _backend_names() -> list[str]:
-    from sweep.envs.backends import BACKENDS
-
-    return list(BACKENDS)
-
-
-def _learner_names() -> list[str]:
-    from sweep.agents import LEARNERS
-
-    return list(LEARNERS)
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_num(v: Any) -> bool:
+# ---- ranges ----------------------------------------------------------------------------------------------------
+def _finite(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def positive_int(v: Any) -> bool:
-    return _is_int(v) and v > 0
+def key(check: Callable[[Any], bool] | None = None, allowed: str = "", default: Any = MISSING) -> Any:
+    """A schema field: ``check`` (on the typed value) and the text naming what is allowed."""
+    return field(default=default, metadata={"check": check, "allowed": allowed})
 
 
-def positive(v: Any) -> bool:
-    return _is_num(v) and v > 0
+def at_least(low: float, what: str = "an integer", unit: str = "") -> Any:
+    return key(lambda v: v >= low, f"{what} >= {low:g}{unit}")
 
 
-def non_negative(v: Any) -> bool:
-    return _is_num(v) and v >= 0
+def positive_int(unit: str = "") -> Any:
+    return key(lambda v: v > 0, f"an integer > 0{unit}")
 
 
-def unit_interval(v: Any) -> bool:
-    return _is_num(v) and 0 <= v <= 1
+def positive(unit: str = "") -> Any:
+    return key(lambda v: _finite(v) and v > 0, f"a number > 0{unit}")
 
 
-def speeds_list(v: Any) -> bool:
-    return isinstance(v, list) and len(v) > 0 and all(non_negative(s) for s in v)
+def non_negative(unit: str = "") -> Any:
+    return key(lambda v: _finite(v) and v >= 0, f"a number >= 0{unit}")
 
 
-def vector3(v: Any) -> bool:
-    return isinstance(v, list) and len(v) == 3 and all(_is_num(s) for s in v) and any(s != 0 for s in v)
+def unit_interval(unit: str = "") -> Any:
+    return key(lambda v: _finite(v) and 0 <= v <= 1, f"a number in [0, 1]{unit}")
 
 
-def param_groups_list(v: Any) -> bool:
-    return isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value", "log_std"}
+def non_empty(what: str) -> Any:
+    return key(lambda v: len(v) > 0, what)
 
 
-def networks_list(v: Any) -> bool:
-    return isinstance(v, list) and len(v) > 0 and set(v) <= {"policy", "value"}
+def vector3() -> Any:
+    return key(lambda v: len(v) == 3 and all(_finite(s) for s in v) and any(s != 0 for s in v),
+               "a non-zero 3-vector [x, y, z]")
 
 
-def one_of(*allowed: str) -> Callable[[Any], bool]:
-    return lambda v: v in allowed
+PARAMS = "a non-empty subset of [policy, value, log_std]"
+NETWORKS = "a non-empty subset of [policy, value]"
 
 
-# (key, check, what is allowed). Keys absent from the config (e.g. agent.recom for ppo) are skipped.
-RULES: list[tuple[str, Callable[[Any], bool], str]] = [
-    ("seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
-    ("train.total_timesteps", positive_int, "an integer > 0"),
-    ("train.progress_every_s", positive, "a number > 0"),
-    ("train.torch_threads", positive_int, "an integer > 0"),
-    ("train.checkpoint_every", positive_int, "an integer > 0 (timesteps)"),
-    ("env.backend", lambda v: v in _backend_names(), "one of " + "|".join(sorted(_backend_names()))),
-    ("env.n_envs", positive_int, "an integer > 0"),
-    ("env.sim_rate", positive, "a number > 0 (Hz)"),
-    ("env.episode_seconds", positive, "a number > 0 (s)"),
-    ("env.start_bound", non_negative, "a number >= 0 (m)"),
-    ("env.world_bound", positive, "a number > 0 (m)"),
-    ("env.motor_time_constant", positive, "a number > 0 (s)"),
-    ("env.observation", one_of("quaternion", "euler"), "quaternion|euler"),
-    ("env.reward.w_p", non_negative, "a number >= 0"),
-    ("env.reward.w_v", non_negative, "a number >= 0"),
-    ("env.reward.w_a", non_negative, "a number >= 0"),
-    ("env.reward.alive_bonus", non_negative, "a number >= 0"),
-    ("env.reward.crash_reward", lambda v: v is None or _is_num(v), "a number or null (no replacement)"),
-    ("env.time_limit", one_of("truncate", "terminate"), "truncate|terminate"),
-    ("env.reward_scale", positive, "a number > 0"),
-    ("env.observation_scale.velocity", positive, "a number > 0"),
-    ("env.observation_scale.body_rate", positive, "a number > 0"),
-    ("wind.speeds", speeds_list, "a non-empty list of speeds >= 0 (m/s)"),
-    ("wind.segment_steps", positive_int, "an integer > 0"),
-    ("wind.direction", vector3, "a non-zero 3-vector [x, y, z]"),
-    ("wind.after_list", one_of("repeat", "hold"), "repeat|hold"),
-    ("agent.learner", lambda v: v in _learner_names(), "one of " + "|".join(_learner_names())),
-    ("agent.ppo.learning_rate", positive, "a number > 0"),
-    ("agent.ppo.n_steps", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
-    ("agent.ppo.batch_size", lambda v: positive_int(v) and v >= 2, "an integer >= 2"),
-    ("agent.ppo.n_epochs", positive_int, "an integer > 0"),
-    ("agent.ppo.gamma", unit_interval, "a number in [0, 1]"),
-    ("agent.ppo.gae_lambda", unit_interval, "a number in [0, 1]"),
-    ("agent.ppo.clip_range", positive, "a number > 0"),
-    ("agent.ppo.ent_coef", non_negative, "a number >= 0"),
-    ("agent.ppo.vf_coef", non_negative, "a number >= 0"),
-    ("agent.ppo.max_grad_norm", positive, "a number > 0"),
-    ("agent.policy.net_arch", lambda v: isinstance(v, list) and len(v) > 0 and all(positive_int(h) for h in v),
-     "a non-empty list of layer widths > 0"),
-    ("agent.policy.activation", one_of("tanh", "relu"), "tanh|relu"),
-    ("agent.policy.adam_eps", positive, "a number > 0"),
-    ("agent.policy.layer_norm", lambda v: isinstance(v, bool), "true|false"),
-    ("agent.ppo.target_kl", lambda v: v is None or positive(v), "a number > 0 or null (off)"),
-    ("agent.ppo.lr_schedule", one_of("constant", "linear", "cosine"), "constant|linear|cosine"),
-    ("agent.ppo.lr_floor", non_negative, "a number >= 0"),
-    ("agent.l2.coef", non_negative, "a number >= 0"),
-    ("agent.l2.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
-    ("agent.l2.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
-    ("agent.l2_init.coef", non_negative, "a number >= 0"),
-    ("agent.l2_init.mode", one_of("coupled", "decoupled"), "coupled|decoupled"),
-    ("agent.l2_init.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
-    ("agent.redo.every_updates", positive_int, "an integer > 0 (PPO updates)"),
-    ("agent.redo.tau", unit_interval, "a number in [0, 1]"),
-    ("agent.redo.networks", networks_list, "a non-empty subset of [policy, value]"),
-    ("agent.redo.batch_size", positive_int, "an integer > 0"),
-    ("agent.shrink_perturb.every_updates", positive_int, "an integer > 0 (PPO updates)"),
-    ("agent.shrink_perturb.shrink", unit_interval, "a number in [0, 1]"),
-    ("agent.shrink_perturb.perturb", non_negative, "a number >= 0"),
-    ("agent.shrink_perturb.params", param_groups_list, "a non-empty subset of [policy, value, log_std]"),
-    ("agent.cbp.replacement_rate", unit_interval, "a number in [0, 1] (per eligible unit and minibatch step)"),
-    ("agent.cbp.maturity", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (minibatch steps)"),
-    ("agent.cbp.decay", unit_interval, "a number in [0, 1]"),
-    ("agent.cbp.networks", networks_list, "a non-empty subset of [policy, value]"),
-    ("agent.cbp.batch_size", positive_int, "an integer > 0"),
-    ("agent.recom.interval", positive_int, "an integer > 0 (timesteps)"),
-    ("agent.recom.window", positive_int, "an integer > 0 (episodes)"),
-    ("agent.recom.gain", non_negative, "a number >= 0"),
-    ("agent.recom.lr_min", positive, "a number > 0"),
-    ("agent.recom.lr_max", positive, "a number > 0"),
-    ("agent.recom.previous", one_of("last_update", "shifted"), "last_update|shifted"),
-    ("agent.recom.gradient", one_of("absolute", "relative"), "absolute|relative"),
-    ("agent.recom.reward", one_of("return", "per_step"), "return|per_step"),
-    ("plasticity.every_rollouts", positive_int, "an integer > 0"),
-    ("plasticity.tau", unit_interval, "a number in [0, 1]"),
-    ("plasticity.batch_size", positive_int, "an integer > 0"),
-    ("plasticity.saturation", unit_interval, "a number in [0, 1]"),
-    ("plasticity.srank_delta", unit_interval, "a number in [0, 1]"),
-    ("plasticity.extra_taus", lambda v: isinstance(v, list) and all(unit_interval(t) for t in v),
-     "a list of numbers in [0, 1]"),
-    ("plasticity.dead_fraction", unit_interval, "a number in [0, 1]"),
-    ("plasticity.probe.steps", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (0: no probe)"),
-    ("plasticity.probe.batch_size", positive_int, "an integer > 0"),
-    ("plasticity.probe.lr", positive, "a number > 0"),
-    ("plasticity.probe.observations", positive_int, "an integer > 0"),
-    ("plasticity.signed_mean_tau", unit_interval, "a number in [0, 1]"),
-    ("eval.policy", one_of("final", "best", "both"), "final|best|both"),
-    ("eval.episodes", positive_int, "an integer >= 1"),
-    ("eval.every_timesteps", lambda v: _is_int(v) and v >= 0, "an integer >= 0 (0: only at the end)"),
-    ("eval.wind_speed", non_negative, "a number >= 0 (m/s)"),
-    ("eval.direction", vector3, "a non-zero 3-vector [x, y, z]"),
-    ("eval.seed", lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
-    ("eval.success_radius", positive, "a number > 0 (m)"),
-    ("eval.success_hold_s", non_negative, "a number >= 0 (s)"),
-    ("tracking.flush_every_s", non_negative, "a number >= 0 (s; 0 writes every logger dump at once)"),
-    ("tracking.experiment", lambda v: isinstance(v, str) and v.strip() != "", "a non-empty string"),
-]
+# ---- the tree (conf/config.yaml top to bottom) --------------------------------------------------------------------
+@dataclass
+class Reward:
+    w_p: float = non_negative()
+    w_v: float = non_negative()
+    w_a: float = non_negative()
+    alive_bonus: float = non_negative()
+    crash_reward: Optional[float] = key(lambda v: v is None or _finite(v), "a number or null (no replacement)")
 
 
+@dataclass
+class ObservationScale:
+    velocity: float = positive()
+    body_rate: float = positive()
+
+
+@dataclass
+class Env:
+    backend: Backend = MISSING
+    n_envs: int = positive_int()
+    sim_rate: float = positive(" (Hz)")
+    episode_seconds: float = positive(" (s)")
+    start_bound: float = non_negative(" (m)")
+    world_bound: float = positive(" (m)")
+    motor_time_constant: float = positive(" (s)")
+    observation: Observation = MISSING
+    observation_scale: ObservationScale = field(default_factory=ObservationScale)
+    reward_scale: float = positive()
+    time_limit: TimeLimit = MISSING
+    reward: Reward = field(default_factory=Reward)
+
+
+@dataclass
+class Train:
+    total_timesteps: int = positive_int()
+    progress_every_s: float = positive()
+    torch_threads: int = positive_int()
+    checkpoint_every: int = positive_int(" (timesteps)")
+    checkpoint_dir: Optional[str] = MISSING
+
+
+@dataclass
+class Probe:
+    steps: int = at_least(0, unit=" (0: no probe)")
+    batch_size: int = positive_int()
+    lr: float = positive()
+    observations: int = positive_int()
+
+
+@dataclass
+class Plasticity:
+    every_rollouts: int = positive_int()
+    tau: float = unit_interval()
+    batch_size: int = positive_int()
+    saturation: float = unit_interval()
+    extra_taus: List[float] = key(lambda v: all(_finite(t) and 0 <= t <= 1 for t in v), "a list of numbers in [0, 1]")
+    dead_fraction: float = unit_interval()
+    signed_mean_tau: float = unit_interval()
+    activation: Activation = MISSING
+    probe: Probe = field(default_factory=Probe)
+    srank_delta: float = unit_interval()
+
+
+@dataclass
+class Eval:
+    policy: EvalPolicy = MISSING
+    episodes: int = key(lambda v: v >= 1, "an integer >= 1")
+    every_timesteps: int = at_least(0, unit=" (0: only at the end)")
+    wind_speed: float = non_negative(" (m/s)")
+    direction: List[float] = vector3()
+    seed: int = at_least(0)
+    success_radius: float = positive(" (m)")
+    success_hold_s: float = non_negative(" (s)")
+
+
+@dataclass
+class Tracking:
+    experiment: str = key(lambda v: v.strip() != "", "a non-empty string")
+    uri: Optional[str] = MISSING
+    log_model: bool = MISSING
+    flush_every_s: float = non_negative(" (s; 0 writes every logger dump at once)")
+
+
+@dataclass
+class Wind:
+    name: str = MISSING
+    speeds: List[float] = key(lambda v: len(v) > 0 and all(_finite(s) and s >= 0 for s in v),
+                              "a non-empty list of speeds >= 0 (m/s)")
+    segment_steps: int = positive_int()
+    after_list: AfterList = MISSING
+    direction: List[float] = vector3()
+
+
+@dataclass
+class PPO:
+    """SB3 PPO's arguments (agent.ppo), and the two controls."""
+    learning_rate: float = positive()
+    n_steps: int = at_least(2)
+    batch_size: int = at_least(2)
+    n_epochs: int = positive_int()
+    gamma: float = unit_interval()
+    gae_lambda: float = unit_interval()
+    clip_range: float = positive()
+    ent_coef: float = non_negative()
+    vf_coef: float = non_negative()
+    max_grad_norm: float = positive()
+    target_kl: Optional[float] = key(lambda v: v is None or (_finite(v) and v > 0), "a number > 0 or null (off)")
+    lr_schedule: LRSchedule = MISSING
+    lr_floor: float = non_negative()
+
+
+@dataclass
+class Policy:
+    net_arch: List[int] = key(lambda v: len(v) > 0 and all(h > 0 for h in v), "a non-empty list of layer widths > 0")
+    activation: Activation = MISSING
+    layer_norm: bool = MISSING
+    adam_eps: float = positive()
+
+
+@dataclass
+class Remedy:
+    """A conf/remedy/ block: the callback it builds and whether the agent uses it."""
+    _target_: str = MISSING
+    enabled: bool = MISSING
+
+
+@dataclass
+class WeightDecay(Remedy):   # conf/remedy/l2.yaml, l2_init.yaml
+    coef: float = non_negative()
+    mode: DecayMode = MISSING
+    params: List[ParamGroup] = non_empty(PARAMS)
+    biases: bool = MISSING
+
+
+@dataclass
+class Recom(Remedy):
+    interval: int = positive_int(" (timesteps)")
+    window: int = positive_int(" (episodes)")
+    gain: float = non_negative()
+    lr_min: float = positive()
+    lr_max: float = positive()
+    previous: RecomPrevious = MISSING
+    gradient: RecomGradient = MISSING
+    reward: RecomReward = MISSING
+
+
+@dataclass
+class ReDo(Remedy):
+    every_updates: int = positive_int(" (PPO updates)")
+    tau: float = unit_interval()
+    networks: List[NetworkName] = non_empty(NETWORKS)
+    batch_size: int = positive_int()
+    reset_adam: bool = MISSING
+
+
+@dataclass
+class ShrinkPerturb(Remedy):
+    every_updates: int = positive_int(" (PPO updates)")
+    shrink: float = unit_interval()
+    perturb: float = non_negative()
+    params: List[ParamGroup] = non_empty(PARAMS)
+    biases: bool = MISSING
+
+
+@dataclass
+class CBP(Remedy):
+    replacement_rate: float = unit_interval(" (per eligible unit and minibatch step)")
+    maturity: int = at_least(0, unit=" (minibatch steps)")
+    decay: float = unit_interval()
+    networks: List[NetworkName] = non_empty(NETWORKS)
+    batch_size: int = positive_int()
+    reset_adam: bool = MISSING
+
+
+@dataclass
+class LearnerTarget:
+    """A conf/learner/ file: the learner class's ``from_config``, built by hydra.utils.instantiate."""
+    _target_: str = MISSING
+    _partial_: bool = True
+
+
+@dataclass
+class Agent:
+    name: str = MISSING
+    label: str = MISSING
+    learner: str = MISSING   # a key of learners: checked in _cross_rules
+    learners: Dict[str, LearnerTarget] = field(default_factory=dict)
+    ppo: PPO = field(default_factory=PPO)
+    policy: Policy = field(default_factory=Policy)
+    l2: WeightDecay = field(default_factory=WeightDecay)
+    recom: Recom = field(default_factory=Recom)
+    redo: ReDo = field(default_factory=ReDo)
+    shrink_perturb: ShrinkPerturb = field(default_factory=ShrinkPerturb)
+    cbp: CBP = field(default_factory=CBP)
+    l2_init: WeightDecay = field(default_factory=WeightDecay)
+
+
+@dataclass
+class SweepConfig:
+    agent: Agent = field(default_factory=Agent)
+    wind: Wind = field(default_factory=Wind)
+    seed: int = at_least(0)
+    resume: str = MISSING   # auto | never | a job dir | an MLflow run id: checked by run.job_record
+    env: Env = field(default_factory=Env)
+    train: Train = field(default_factory=Train)
+    plasticity: Plasticity = field(default_factory=Plasticity)
+    eval: Eval = field(default_factory=Eval)
+    tracking: Tracking = field(default_factory=Tracking)
+
+
+ConfigStore.instance().store(name="sweep_schema", node=SweepConfig)
+
+
+# ---- validation ------------------------------------------------------------------------------------------------
+def _allowed(schema: type, path: list[str]) -> str:
+    """What the schema allows at ``path``: the field's own text, its choices, or its type."""
+    node, f = schema, None
+    for name in path:
+        f = next((x for x in fields(node) if x.name == name), None)
+        if f is None:
+            return "a key of the schema (sweep.config.SweepConfig)"
+        node = f.type if isinstance(f.type, type) else _resolve_type(node, f)
+    text = f.metadata.get("allowed") if f is not None else ""
+    if text:
+        return text
+    if isinstance(node, type) and issubclass(node, Enum):
+        return "|".join(node.__members__)
+    return {int: "an integer", float: "a number", bool: "true|false", str: "a string"}.get(node, "of its type")
+
+
+def _resolve_type(owner: type, f) -> Any:
+    import typing
+
+    hints = typing.get_type_hints(owner, globalns=globals())
+    hint = hints[f.name]
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    return args[0] if typing.get_origin(hint) is typing.Union and args else hint
+
+
+def _shown(value: Any) -> Any:
+    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+
+
+def _checks(node: Any, schema_cls: type, prefix: str = ""):
+    """(key, typed value, check, allowed) for every field with a range check, depth first."""
+    for f in fields(schema_cls):
+        value = node[f.name]
+        typ = _resolve_type(schema_cls, f)
+        if is_dataclass(typ):
+            yield from _checks(value, typ, f"{prefix}{f.name}.")
+        elif f.metadata.get("check") is not None:
+            plain = [v.value if isinstance(v, Enum) else v for v in value] if OmegaConf.is_list(value) else value
+            yield f"{prefix}{f.name}", plain, f.metadata["check"], f.metadata["allowed"]
 
 
 def validate(cfg: DictConfig) -> None:
     """Raise ConfigError naming the first invalid key, its value and what is allowed."""
-    for key, check, allowed in RULES:
-        value = _get(cfg, key)
-        if value is _MISSING:
-            continue
-        if not check(value):
-            raise ConfigError(f"{key}={value!r}: must be {allowed}")
-    lr_min, lr_max = _get(cfg, "agent.recom.lr_min"), _get(cfg, "agent.recom.lr_max")
-    if lr_min is not _MISSING and lr_max is not _MISSING and lr_min > lr_max:
-        raise ConfigError(f"agent.recom.lr_min={lr_min!r} > agent.recom.lr_max={lr_max!r}: must be lr_min <= lr_max")
-    if _get(cfg, "agent.l2.enabled") is True and _get(cfg, "agent.l2_init.enabled") is True:
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    plain.pop("hydra", None)
+    try:
+        typed = OmegaConf.merge(OmegaConf.structured(SweepConfig), plain)
+        OmegaConf.to_container(typed, throw_on_missing=True)
+    except (ValidationError, ConfigKeyError) as err:
+        full_key = re.sub(r"\[\d+\]$", "", err.full_key or "")
+        value = OmegaConf.select(cfg, full_key, default=None) if full_key else None
+        if isinstance(err, ConfigKeyError) or "not in" in str(err):
+            raise ConfigError(f"{full_key}: not a config key (sweep.config.SweepConfig lists them)") from None
+        if "Missing mandatory value" in str(err):
+            raise ConfigError(f"{full_key}: missing; must be {_allowed(SweepConfig, full_key.split('.'))}") from None
+        raise ConfigError(f"{full_key}={_shown(value)!r}: must be {_allowed(SweepConfig, full_key.split('.'))}") from None
+    for name, value, check, allowed in _checks(typed, SweepConfig):
+        if not check(value):   # the value as the user wrote it (the schema turned ints into floats)
+            raise ConfigError(f"{name}={_shown(OmegaConf.select(cfg, name))!r}: must be {allowed}")
+    _cross_rules(typed)
+
+
+def _cross_rules(c: DictConfig) -> None:
+    """Rules across keys, which no field type says."""
+    a = c.agent
+    if a.learner not in a.learners:
+        raise ConfigError(f"agent.learner={a.learner!r}: must be one of {'|'.join(a.learners)} (conf/learner/)")
+    if a.recom.lr_min > a.recom.lr_max:
+        raise ConfigError(f"agent.recom.lr_min={a.recom.lr_min!r} > agent.recom.lr_max={a.recom.lr_max!r}: "
+                          "must be lr_min <= lr_max")
+    if a.l2.enabled and a.l2_init.enabled:
         raise ConfigError("agent.l2.enabled=True and agent.l2_init.enabled=True: must be one of them (both set the "
                           "optimizer's weight decay; L2 pulls toward 0, L2-Init toward theta_0)")
-    if _get(cfg, "agent.recom.enabled") is True and _get(cfg, "agent.ppo.lr_schedule") not in (_MISSING, "constant"):
-        raise ConfigError(f"agent.ppo.lr_schedule={_get(cfg, 'agent.ppo.lr_schedule')!r}: must be constant with "
+    if a.recom.enabled and a.ppo.lr_schedule.value != "constant":
+        raise ConfigError(f"agent.ppo.lr_schedule={a.ppo.lr_schedule.value!r}: must be constant with "
                           "agent.recom.enabled=True (RECOM sets the learning rate itself)")
-    rollout = _get(cfg, "agent.ppo.n_steps") * _get(cfg, "env.n_envs")
-    batch = _get(cfg, "agent.ppo.batch_size")
+    rollout, batch = a.ppo.n_steps * c.env.n_envs, a.ppo.batch_size
     if batch > rollout:
         raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be <= the rollout size "
                           f"agent.ppo.n_steps x env.n_envs = {rollout}")
-    if _get(cfg, "agent.learner") == "jax":
+    if a.learner == "jax":
         if rollout % batch:
-            raise ConfigError(f"agent.ppo.batch_size={batch!r}: with agent.learner=jax must divide the rollout size "
-                              f"agent.ppo.n_steps x env.n_envs = {rollout}")
-        if _get(cfg, "env.backend") != "fast":
-            raise ConfigError(f"env.backend={_get(cfg, 'env.backend')!r}: agent.learner=jax steps the env in its compiled "
-                              f"rollout, which needs env.backend=fast")
+            raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be a divisor of the rollout size "
+                              f"agent.ppo.n_steps x env.n_envs = {rollout} with agent.learner=jax")
+        if c.env.backend.value != "fast":
+            raise ConfigError(f"env.backend={c.env.backend.value!r}: must be fast with agent.learner=jax (its compiled "
+                              "rollout steps the fast backend)")

@@ -6,8 +6,6 @@ contract, ``sweep.agents.learner.Learner``, which is all that remedies, diagnost
 """
 from __future__ import annotations
 
-import importlib
-
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -16,20 +14,16 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.schedules import LRSchedule
 
-LEARNERS = {"sb3": "sweep.agents.sb3:SB3PPO", "jax": "sweep.agents.jax_ppo:JaxPPO"}
-
-
 def build_learner(agent: DictConfig, env: VecEnv, seed: int) -> BaseAlgorithm:
-    """PPO with ``agent.ppo`` hyperparameters and ``agent.policy`` networks on the chosen learner."""
-    module, cls = LEARNERS[agent.learner].split(":")
-    learner = getattr(importlib.import_module(module), cls)
+    """PPO with ``agent.ppo`` hyperparameters and ``agent.policy`` networks on the learner ``agent.learner``
+    names among ``agent.learners`` (conf/learner/*.yaml: the ``_target_`` of its ``from_config``)."""
+    from_config = instantiate(agent.learners[agent.learner])
     ppo = OmegaConf.to_container(agent.ppo, resolve=True)
     kind, floor = ppo.pop("lr_schedule", "constant"), ppo.pop("lr_floor", 0.0)
     if kind != "constant":
         ppo["learning_rate"] = LRSchedule(kind, float(ppo["learning_rate"]), float(floor))
     p = agent.policy
-    return learner.from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed,
-                               layer_norm=bool(p.get("layer_norm", False)))
+    return from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed, layer_norm=bool(p.layer_norm))
 
 
 def build_remedies(agent: DictConfig) -> list[BaseCallback]:
@@ -42,4 +36,4 @@ def build_remedies(agent: DictConfig) -> list[BaseCallback]:
     return remedies
 
 
-__all__ = ["LEARNERS", "build_learner", "build_remedies"]
+__all__ = ["build_learner", "build_remedies"]

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-SCHEDULES = ("constant", "linear", "cosine")
 
 
 @dataclass(frozen=True)
@@ -24,10 +23,6 @@ class LRSchedule:
     kind: str
     initial: float
     floor: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.kind not in SCHEDULES:
-            raise ValueError(f"lr_schedule={self.kind!r}; allowed: {list(SCHEDULES)}")
 
     def __call__(self, progress_remaining: float) -> float:
         if self.kind == "constant":

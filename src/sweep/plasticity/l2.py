@@ -30,9 +30,6 @@ def penalized(name: str, params: list[str], biases: bool) -> bool:
     return any(name.startswith(prefix) for group in params for prefix in GROUPS[group])
 
 
-MODES, ANCHORS = ("coupled", "decoupled"), ("zero", "init")
-
-
 class AnchoredAdam(torch.optim.Adam):
     """Adam whose param groups may carry ``anchors`` (theta_0), ``anchor_coef`` and ``anchor_mode``: L2 toward
     the anchors, coupled (added to the gradient before the moments) or decoupled (applied to the parameters
@@ -82,8 +79,6 @@ class L2Regularization(BaseCallback):
 
     def __init__(self, coef: float = 1e-3, mode: str = "decoupled", params=("policy", "value"), biases: bool = True):
         super().__init__()
-        if mode not in MODES:
-            raise ValueError(f"mode={mode!r}; allowed: {list(MODES)}")
         self.coef, self.mode, self.params, self.biases = float(coef), mode, tuple(params), bool(biases)
 
     def _init_callback(self) -> None:

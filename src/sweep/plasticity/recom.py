@@ -43,10 +43,6 @@ def retrospective_cost(returns: np.ndarray, losses: np.ndarray) -> float:
     return float(np.mean(-np.asarray(returns, dtype=np.float64) + np.asarray(losses, dtype=np.float64)))
 
 
-GRADIENTS = ("absolute", "relative")
-REWARDS = ("return", "per_step")
-
-
 def cost_gradient(cost: float, cost_prev: float, reading: str = "absolute") -> float:
     """Eq. 7: C_ret - C_prev (``absolute``), or that change over |C_prev| (``relative``)."""
     change = cost - cost_prev
@@ -75,10 +71,6 @@ class Recom(BaseCallback):
                  lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update",
                  gradient: str = "absolute", reward: str = "return") -> None:
         super().__init__()
-        if gradient not in GRADIENTS:
-            raise ValueError(f"agent.recom.gradient={gradient!r}; allowed: {list(GRADIENTS)}")
-        if reward not in REWARDS:
-            raise ValueError(f"agent.recom.reward={reward!r}; allowed: {list(REWARDS)}")
         self.reward = reward
         self.interval, self.window, self.gain = int(interval), int(window), float(gain)
         self.lr_min, self.lr_max, self.previous, self.gradient = float(lr_min), float(lr_max), previous, gradient

@@ -25,9 +25,7 @@ NETWORKS = ("policy", "value")
 
 
 def chosen_networks(networks) -> tuple[str, ...]:
-    """The networks a unit-level remedy acts on (a non-empty subset of policy, value)."""
-    if not networks or not set(networks) <= set(NETWORKS):
-        raise ValueError(f"networks={list(networks)!r}; allowed: a non-empty subset of {list(NETWORKS)}")
+    """The networks a unit-level remedy acts on (a non-empty subset of policy, value: sweep.config checks it)."""
     return tuple(networks)
 
 
@@ -86,8 +84,6 @@ class Remedy(BaseCallback):
 
     def __init__(self, every_updates: int = 1, batch_size: int = 1024) -> None:
         super().__init__()
-        if int(every_updates) < 1:
-            raise ValueError(f"every_updates={every_updates!r}: must be an integer >= 1")
         self.every, self.batch_size = int(every_updates), int(batch_size)
         self.rollouts = 0   # rollouts ended so far = updates that follow them
         self.updates = 0    # updates this remedy has already handled
