@@ -57,7 +57,7 @@ def test_periodic_evaluation_is_logged_during_training(store, tmp_path):
 def test_failing_run_ends_failed_with_reason(store, tmp_path):
     cfg = compose_cfg(TINY)
     with pytest.raises(RuntimeError):
-        with TrackedRun(cfg, {"agent": "ppo"}) as tracked:
+        with TrackedRun(cfg.tracking, {}, {"agent": "ppo"}) as tracked:
             MlflowWriter(tracked, flush_every_s=0).write({"rollout/ep_rew_mean": -3.0, "note": "text"}, {}, step=7)
             raise RuntimeError("boom")
     client, (r,) = all_runs(store)
@@ -66,7 +66,7 @@ def test_failing_run_ends_failed_with_reason(store, tmp_path):
 
 
 def test_writer_buffers_dumps_until_flush_and_drops_replayed_steps(store):
-    with TrackedRun(compose_cfg(TINY), {"agent": "ppo"}) as tracked:
+    with TrackedRun(compose_cfg(TINY).tracking, {}, {"agent": "ppo"}) as tracked:
         writer = MlflowWriter(tracked, after_step=4, flush_every_s=3600)
         for step in (4, 5, 6):  # step 4 was logged before a resume: dropped
             writer.write({"rollout/ep_rew_mean": float(-step), "time/iterations": 1}, {}, step=step)

@@ -33,13 +33,14 @@ from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
 from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.probe import PlasticityProbe
 from sweep.status import read_status, write_status
-from sweep.tracking import PROJECT_ROOT, MlflowWriter, TrackedRun, checkpoint_dir_of_run, last_logged_step, tracking_uri
+from sweep.tracking import (PROJECT_ROOT, MlflowWriter, TrackedRun, checkpoint_dir_of_run, flatten, last_logged_step,
+                            tracking_uri)
 
 log = logging.getLogger("sweep")
 
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
-    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.get("label", cfg.agent.name), "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
+    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.label, "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
             "learner": cfg.agent.learner, "sweep": "single", "job": "0"}
     if HydraConfig.initialized():
         hc = HydraConfig.get()
@@ -106,7 +107,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
                   ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
 
     run_id = previous.get("run_id") if previous else None
-    with TrackedRun(cfg, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
+    params = flatten(OmegaConf.to_container(cfg, resolve=True))
+    with TrackedRun(cfg.tracking, params, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
         record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
         log.info("[%s] MLflow run %s in %s%s", tags["run_name"], tracked.run_id, tracked.uri,

@@ -106,16 +106,18 @@ def flatten(cfg: Any, prefix: str = "") -> dict[str, str]:
 
 
 class TrackedRun:
-    """One MLflow run per job. Use as a context manager: an exception ends the run FAILED."""
+    """One MLflow run per job, in the store and experiment of ``tracking`` (the config's ``tracking:``), with
+    ``params`` (e.g. ``flatten`` of the resolved config) logged when the run is created. Use as a context
+    manager: an exception ends the run FAILED."""
 
-    def __init__(self, cfg: DictConfig, tags: dict[str, str], run_id: str | None = None) -> None:
-        self.uri = tracking_uri(cfg.tracking.uri)
+    def __init__(self, tracking: DictConfig, params: dict[str, str], tags: dict[str, str],
+                 run_id: str | None = None) -> None:
+        self.uri = tracking_uri(tracking.uri)
         self.client = MlflowClient(tracking_uri=self.uri)
-        self.experiment_id = ensure_store(self.uri, cfg.tracking.experiment)
+        self.experiment_id = ensure_store(self.uri, tracking.experiment)
         if run_id is None:
             run = self.client.create_run(self.experiment_id, tags=tags, run_name=tags.get("run_name"))
             self.run_id = run.info.run_id
-            params = flatten(OmegaConf.to_container(cfg, resolve=True))
             items = [Param(k, v[:6000]) for k, v in params.items()]
             for i in range(0, len(items), 100):
                 self.client.log_batch(self.run_id, params=items[i:i + 100])
