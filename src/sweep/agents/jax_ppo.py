@@ -268,12 +268,15 @@ class JaxPPO(OnPolicyAlgorithm):
         dones = np.zeros(n, dtype=np.bool_)
         noise = self.noise_rng.standard_normal((n_rollout_steps, n, self.action_space.shape[0]), dtype=np.float32)
         wind = env.wind.velocities(env.global_step + n * np.arange(n_rollout_steps))
-        args = env.kernel_args
+        buffer = rollout.Buffer(observations=buf.observations, actions=buf.actions, rewards=buf.rewards,
+                                episode_starts=buf.episode_starts, values=buf.values, log_probs=buf.log_probs)
+        kernel = env.kernel
         t = 0
-        while t < n_rollout_steps:
-            t_next = rollout.fly(t, n_rollout_steps, obs, episode_starts, dones, noise, wind, *self._pi, *self._vf,
-                                 self._log_std, self._relu, self.layer_norm, self.gamma, buf.observations, buf.actions, buf.rewards,
-                                 buf.episode_starts, buf.values, buf.log_probs, *args)
+        while t < n_rollout_steps:  # the weights are read at every call: a callback may have written them
+            policy = rollout.Policy(pi=rollout.Mlp(*self._pi), vf=rollout.Mlp(*self._vf), log_std=self._log_std,
+                                    relu=self._relu, layer_norm=self.layer_norm)
+            t_next = rollout.fly(t, n_rollout_steps, obs, episode_starts, dones, noise, wind, policy, self.gamma, buffer,
+                                 kernel)
             env.global_step += n * (t_next - t)
             self.num_timesteps += n * (t_next - t)
             t = t_next

@@ -15,15 +15,19 @@ The env step is the env's own compiled pieces: the fast backend's ``step_vehicle
 ``task_outcome`` (observation, reward, termination), so the task is the one ``HoverVecEnv.step`` runs.
 ``gae`` is SB3's ``RolloutBuffer.compute_returns_and_advantage``.
 
+``fly``'s inputs are named: the networks as a ``Policy``, the rollout buffer's arrays as a ``Buffer``, the
+env's state and constants as its ``HoverKernel`` (``HoverVecEnv.kernel``).
+
 The networks run here in float32 from weights laid out (in, out) per layer, with the LayerNorm's scale and
-shift per hidden layer (``mlp``; unused without ``layer_norm``); the JAX
-learner re-exports them after every update. ``tanh`` is the float32 rational approximation XLA's CPU
-backend (Eigen) evaluates: within 2.6e-7 of tanh, bit-identical to ``jnp.tanh`` for ~80% of inputs
-(libm's: ~30%), and it vectorises, so the rollout's policy is the update's policy, 3x cheaper.
+shift per hidden layer (``Mlp``; unused without ``layer_norm``); the JAX learner re-exports them after every
+update. ``tanh`` is the float32 rational approximation XLA's CPU backend (Eigen) evaluates: within 2.6e-7 of
+tanh, bit-identical to ``jnp.tanh`` for ~80% of inputs (libm's: ~30%), and it vectorises, so the rollout's
+policy is the update's policy, 3x cheaper.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -53,10 +57,38 @@ def tanh(x):
     return x * p / q
 
 
+class Mlp(NamedTuple):
+    """One network as the compiled code reads it: per layer, float32."""
+    weights: tuple  # (in, out) matrices
+    biases: tuple   # (out,)
+    scales: tuple   # LayerNorm scale per hidden layer (unused without layer_norm)
+    shifts: tuple   # LayerNorm shift per hidden layer
+
+
+class Policy(NamedTuple):
+    """SB3's ``ActorCriticPolicy`` (Gaussian, state-independent std): the action mean and value networks."""
+    pi: Mlp
+    vf: Mlp
+    log_std: np.ndarray  # (A,) float32
+    relu: bool           # hidden activation ReLU (else tanh)
+    layer_norm: bool     # LayerNorm before each hidden activation
+
+
+class Buffer(NamedTuple):
+    """SB3's ``RolloutBuffer`` arrays that ``fly`` writes, (n_steps, N, ...)."""
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    episode_starts: np.ndarray
+    values: np.ndarray
+    log_probs: np.ndarray
+
+
 @numba.njit(cache=True, fastmath=True)
-def mlp(x, weights, biases, scales, shifts, relu, layer_norm, h_in, h_out, out):
+def mlp(x, net, relu, layer_norm, h_in, h_out, out):
     """out = MLP(x) for one input row: hidden layers Linear [-> LayerNorm(scale, shift)] -> tanh (or ReLU), linear
-    output. ``h_in``/``h_out`` are scratch rows at least as wide as the widest layer."""
+    output. ``h_in``/``h_out`` are scratch rows at least as wide as the widest layer (``widest``)."""
+    weights, biases, scales, shifts = net
     n_layers = len(weights)
     for k in range(x.shape[0]):
         h_in[k] = x[k]
@@ -87,24 +119,28 @@ def mlp(x, weights, biases, scales, shifts, relu, layer_norm, h_in, h_out, out):
                 h_in[j] = max(h_out[j], np.float32(0.0)) if relu else tanh(h_out[j])
 
 
+@numba.njit(cache=True, inline="always")
+def widest(width, net):
+    """The larger of ``width`` and the widest layer output of ``net`` (the scratch rows ``mlp`` needs)."""
+    for layer in range(len(net.weights)):
+        width = max(width, net.weights[layer].shape[1])
+    return width
+
+
 @numba.njit(cache=True)
-def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
-        pi_w, pi_b, pi_g, pi_c, vf_w, vf_b, vf_g, vf_c, log_std, relu, layer_norm, gamma,
-        buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs,
-        vehicles, physics,
-        t_idx, ep_return, reward_scale, episode_steps, world_bound, terminate_at_limit, euler, v_scale, w_scale,
-        w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, rewards, crashed, terminated, truncated):
+def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buffer, env):
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
 
     ``obs`` (N, D) is the observation before step t and is overwritten with the one after the last step
     (the terminal one for vehicles whose episode ended: the caller resets them). ``wind`` (n_steps, 3) is
-    the wind of every step of the rollout, ``noise`` (n_steps, N, A) the Gaussian draws."""
+    the wind of every step of the rollout, ``noise`` (n_steps, N, A) the Gaussian draws. ``policy`` is a
+    ``Policy``, ``buffer`` a ``Buffer``, ``env`` the env's ``HoverKernel`` (``sweep.envs.hover``)."""
+    pi, vf, log_std, relu, layer_norm = policy
+    vehicles, physics, outcome = env.vehicles, env.physics, env.outcome
+    t_idx, ep_return, reward_scale = env.t_idx, env.ep_return, env.reward_scale
+    rewards, terminated, truncated = outcome.rewards, outcome.terminated, outcome.truncated
     n, n_act = obs.shape[0], noise.shape[2]
-    width = obs.shape[1]
-    for layer in range(len(pi_w)):
-        width = max(width, pi_w[layer].shape[1])
-    for layer in range(len(vf_w)):
-        width = max(width, vf_w[layer].shape[1])
+    width = widest(widest(obs.shape[1], pi), vf)
     h_in = np.empty(width, np.float32)
     h_out = np.empty(width, np.float32)
     mean = np.empty(n_act, np.float32)
@@ -117,39 +153,36 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
     clipped = np.empty((n, n_act), np.float32)
     wind_now = np.empty((n, 3))
     speed_min, speed_max = physics.speed_min, physics.speed_max
-    x, v, q, w = vehicles.x, vehicles.v, vehicles.q, vehicles.w
     while t < n_steps:
         for i in range(n):
-            mlp(obs[i], pi_w, pi_b, pi_g, pi_c, relu, layer_norm, h_in, h_out, mean)
-            mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
+            mlp(obs[i], pi, relu, layer_norm, h_in, h_out, mean)
+            mlp(obs[i], vf, relu, layer_norm, h_in, h_out, value)
             log_prob = 0.0
             for a in range(n_act):
                 eps = noise[t, i, a]
                 action = mean[a] + std[a] * eps
-                buf_actions[t, i, a] = action
+                buffer.actions[t, i, a] = action
                 c = min(max(action, np.float32(-1.0)), np.float32(1.0))
                 clipped[i, a] = c
                 cmd[i, a] = action_to_rotor_speed(c, speed_min, speed_max)
                 log_prob -= 0.5 * eps * eps
-            buf_log_probs[t, i] = log_prob - log_norm
-            buf_values[t, i] = value[0]
-            buf_starts[t, i] = episode_starts[i]
+            buffer.log_probs[t, i] = log_prob - log_norm
+            buffer.values[t, i] = value[0]
+            buffer.episode_starts[t, i] = episode_starts[i]
             for k in range(obs.shape[1]):
-                buf_obs[t, i, k] = obs[i, k]
+                buffer.observations[t, i, k] = obs[i, k]
             for k in range(3):
                 wind_now[i, k] = wind[t, k]
         step_vehicles(vehicles, cmd, wind_now, physics)
-        task_outcome(x, v, q, w, clipped, t_idx, episode_steps, world_bound, terminate_at_limit, euler, v_scale,
-                     w_scale, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, obs, rewards, crashed,
-                     terminated, truncated)
+        task_outcome(vehicles, clipped, t_idx, env.task, obs, outcome)
         any_done = False
         for i in range(n):
             ep_return[i] += rewards[i]
             reward = rewards[i] * np.float32(reward_scale)
             if truncated[i]:
-                mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
+                mlp(obs[i], vf, relu, layer_norm, h_in, h_out, value)
                 reward += np.float32(gamma) * value[0]
-            buf_rewards[t, i] = reward
+            buffer.rewards[t, i] = reward
             dones[i] = terminated[i] or truncated[i]
             episode_starts[i] = dones[i]
             any_done = any_done or dones[i]
@@ -160,29 +193,25 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind,
 
 
 @numba.njit(cache=True)
-def values_of(obs, vf_w, vf_b, vf_g, vf_c, relu, layer_norm, out):
-    """V(obs) for every row of ``obs``."""
-    width = obs.shape[1]
-    for layer in range(len(vf_w)):
-        width = max(width, vf_w[layer].shape[1])
+def outputs_of(obs, net, relu, layer_norm, out):
+    """``out[i] = net(obs[i])`` for every row of ``obs``; ``out`` is (N, outputs)."""
+    width = widest(obs.shape[1], net)
     h_in = np.empty(width, np.float32)
     h_out = np.empty(width, np.float32)
-    value = np.empty(1, np.float32)
     for i in range(obs.shape[0]):
-        mlp(obs[i], vf_w, vf_b, vf_g, vf_c, relu, layer_norm, h_in, h_out, value)
-        out[i] = value[0]
+        mlp(obs[i], net, relu, layer_norm, h_in, h_out, out[i])
 
 
 @numba.njit(cache=True)
-def actions_of(obs, pi_w, pi_b, pi_g, pi_c, relu, layer_norm, out):
-    """The Gaussian's mean mu(obs) for every row of ``obs`` (the deterministic action, unclipped)."""
-    width = obs.shape[1]
-    for layer in range(len(pi_w)):
-        width = max(width, pi_w[layer].shape[1])
-    h_in = np.empty(width, np.float32)
-    h_out = np.empty(width, np.float32)
-    for i in range(obs.shape[0]):
-        mlp(obs[i], pi_w, pi_b, pi_g, pi_c, relu, layer_norm, h_in, h_out, out[i])
+def values_of(obs, vf_weights, vf_biases, vf_scales, vf_shifts, relu, layer_norm, out):
+    """V(obs) for every row of ``obs`` into ``out`` (N,) (the value network's layers, as ``Mlp``'s fields)."""
+    outputs_of(obs, Mlp(vf_weights, vf_biases, vf_scales, vf_shifts), relu, layer_norm, out.reshape((out.shape[0], 1)))
+
+
+@numba.njit(cache=True)
+def actions_of(obs, pi_weights, pi_biases, pi_scales, pi_shifts, relu, layer_norm, out):
+    """The Gaussian's mean mu(obs) for every row of ``obs`` (the deterministic action, unclipped) into ``out``."""
+    outputs_of(obs, Mlp(pi_weights, pi_biases, pi_scales, pi_shifts), relu, layer_norm, out)
 
 
 @numba.njit(cache=True)

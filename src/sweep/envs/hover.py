@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Sequence
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -30,7 +30,9 @@ import numba
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sweep.envs.backends import make_backend
-from sweep.envs.reward import HoverReward, step_reward
+from sweep.envs.backends.base import Vehicles
+from sweep.envs.backends.fast import Physics
+from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 
@@ -64,27 +66,59 @@ def quat_to_euler_xyz(q, out):
     out[2] = math.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
 
 
+class Task(NamedTuple):
+    """The task's constants, as ``task_outcome`` reads them."""
+    episode_steps: int
+    world_bound: float        # m, per axis
+    terminate_at_limit: bool  # time_limit="terminate"
+    euler: bool               # observation="euler"
+    velocity_scale: float     # observation_scale
+    body_rate_scale: float
+    reward: RewardWeights
+
+
+class Outcome(NamedTuple):
+    """``task_outcome``'s per-vehicle results of one step, (N,) arrays rewritten in place."""
+    rewards: np.ndarray     # float32, in the task's units
+    crashed: np.ndarray     # bool: left the bounds
+    terminated: np.ndarray  # bool
+    truncated: np.ndarray   # bool
+
+
+class HoverKernel(NamedTuple):
+    """What a compiled loop needs to step a ``HoverVecEnv`` itself (``HoverVecEnv.kernel``; the arrays are the
+    env's own, so the env sees every step)."""
+    vehicles: Vehicles
+    physics: Physics
+    task: Task
+    t_idx: np.ndarray      # (N,) int64: steps of each episode so far
+    ep_return: np.ndarray  # (N,) float64: return of each episode so far, task units
+    reward_scale: float    # the learner gets the reward times this
+    outcome: Outcome
+
+
 @numba.njit(cache=True)
-def task_outcome(x, v, q, w, actions, t_idx, episode_steps, world_bound, terminate_at_limit, euler, v_scale,
-                 w_scale, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward,
-                 obs, rewards, crashed, terminated, truncated):
-    """After the physics step: advance each episode clock, write observation, reward and the
-    crashed (left the bounds) / terminated / truncated flags of every vehicle (in place)."""
+def task_outcome(vehicles, actions, t_idx, task, obs, outcome):
+    """After the physics step: advance each episode clock ``t_idx``, write the observation ``obs`` and the
+    ``outcome`` (reward, crashed = left the bounds, terminated, truncated) of every vehicle (in place)."""
+    x, v, q, w = vehicles.x, vehicles.v, vehicles.q, vehicles.w
+    rewards, crashed, terminated, truncated = outcome
+    world_bound, terminate_at_limit, v_scale, w_scale = (task.world_bound, task.terminate_at_limit,
+                                                         task.velocity_scale, task.body_rate_scale)
     for i in range(x.shape[0]):
         t_idx[i] += 1
         out = False
         for a in range(3):
             out = out or abs(x[i, a]) > world_bound or abs(v[i, a]) > SAFE_SPEED or abs(w[i, a]) > SAFE_RATE
-        rewards[i] = step_reward(x[i], v[i], actions[i], out, w_p, w_v, w_a, alive_bonus, replace_crash,
-                                 crash_reward)
-        at_limit = t_idx[i] >= episode_steps and not out
+        rewards[i] = step_reward(x[i], v[i], actions[i], out, task.reward)
+        at_limit = t_idx[i] >= task.episode_steps and not out
         crashed[i] = out
         terminated[i] = out or (at_limit and terminate_at_limit)
         truncated[i] = at_limit and not terminate_at_limit
         for a in range(3):
             obs[i, a] = x[i, a]
             obs[i, 3 + a] = v[i, a] * v_scale
-        if euler:
+        if task.euler:
             quat_to_euler_xyz(q[i], obs[i, 6:9])
             for a in range(3):
                 obs[i, 9 + a] = w[i, a] * w_scale
@@ -154,19 +188,22 @@ class HoverVecEnv(VecEnv):
         self._crashed = np.zeros(n_envs, dtype=np.bool_)
         self._terminated = np.zeros(n_envs, dtype=np.bool_)
         self._truncated = np.zeros(n_envs, dtype=np.bool_)
-        self._task_args = (self.episode_steps, self.world_bound, time_limit == "terminate",
-                           observation == "euler", self.velocity_scale, self.body_rate_scale,
-                           *self.reward_fn.kernel_args)
+        self._outcome = Outcome(rewards=self._rewards, crashed=self._crashed, terminated=self._terminated,
+                                truncated=self._truncated)
+        self._task = Task(episode_steps=self.episode_steps, world_bound=self.world_bound,
+                          terminate_at_limit=time_limit == "terminate", euler=observation == "euler",
+                          velocity_scale=self.velocity_scale, body_rate_scale=self.body_rate_scale,
+                          reward=self.reward_fn.weights)
 
     @property
-    def kernel_args(self) -> tuple:
-        """What a compiled loop needs to step this env itself: the fast backend's state and physics
-        constants, then ``task_outcome``'s (see ``sweep.agents.rollout``)."""
+    def kernel(self) -> HoverKernel:
+        """What a compiled loop needs to step this env itself: the fast backend's state and physics, then
+        ``task_outcome``'s inputs and outputs (see ``sweep.agents.rollout``)."""
         s = self.sim
         if not hasattr(s, "physics"):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
-        return (s.vehicles, s.physics, self.t_idx, self.ep_return, self.reward_scale,
-                *self._task_args, self._rewards, self._crashed, self._terminated, self._truncated)
+        return HoverKernel(vehicles=s.vehicles, physics=s.physics, task=self._task, t_idx=self.t_idx,
+                           ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome)
 
     # ---- task pieces -------------------------------------------------------------------------
     def _wind_now(self) -> np.ndarray:
@@ -228,9 +265,7 @@ class HoverVecEnv(VecEnv):
         cmd = action_to_rotor_speed.py_func(actions.astype(np.float64), self.speed_min, self.speed_max)
         self.sim.step(cmd, self._wind_now())
         self.global_step += self.num_envs
-        s = self.sim
-        task_outcome(s.x, s.v, s.q, s.w, actions, self.t_idx, *self._task_args,
-                     self._obs_buf, self._rewards, self._crashed, self._terminated, self._truncated)
+        task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome)
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()
         self.ep_return += rewards
         dones = self._terminated | self._truncated

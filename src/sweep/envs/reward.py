@@ -13,32 +13,44 @@ the box early *raises* the return (docs/calibration.md measures it). ``alive_bon
 paper, default 0) is added to every step that does not crash.
 
 ``step_reward`` is the rule for one vehicle, compiled with numba so the env's step kernel and
-``HoverReward`` (the NumPy-facing form) share one formula.
+``HoverReward`` (the NumPy-facing form) share one formula; it reads the constants as ``RewardWeights``
+(``HoverReward.weights``).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 
+class RewardWeights(NamedTuple):
+    """``HoverReward``'s constants as the compiled ``step_reward`` reads them."""
+    w_p: float
+    w_v: float
+    w_a: float
+    alive_bonus: float
+    replace_crash: bool   # a crash step gets crash_reward instead of Eqs. 3-4
+    crash_reward: float   # 0.0 when not replace_crash
+
+
 @numba.njit(cache=True)
-def step_reward(p, v, a, crashed, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward):
+def step_reward(p, v, a, crashed, weights):
     """One vehicle's reward: Eqs. 3-4 plus ``alive_bonus``, or ``crash_reward`` on a crash step."""
-    if crashed and replace_crash:
-        return crash_reward
+    if crashed and weights.replace_crash:
+        return weights.crash_reward
     dist = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
     speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
     effort = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3])
-    return alive_bonus - (w_p * dist + w_v * speed + w_a * effort)
+    return weights.alive_bonus - (weights.w_p * dist + weights.w_v * speed + weights.w_a * effort)
 
 
 @numba.njit(cache=True)
-def _batch_reward(p, v, a, crashed, w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward, out):
+def _batch_reward(p, v, a, crashed, weights, out):
     for i in range(p.shape[0]):
-        out[i] = step_reward(p[i], v[i], a[i], crashed[i], w_p, w_v, w_a, alive_bonus, replace_crash, crash_reward)
+        out[i] = step_reward(p[i], v[i], a[i], crashed[i], weights)
 
 
 @dataclass(frozen=True)
@@ -50,11 +62,12 @@ class HoverReward:
     crash_reward: float | None = -500.0
 
     @property
-    def kernel_args(self) -> tuple:
+    def weights(self) -> RewardWeights:
         """The constants ``step_reward`` takes after (p, v, a, crashed)."""
         replace = self.crash_reward is not None
-        return (float(self.w_p), float(self.w_v), float(self.w_a), float(self.alive_bonus), replace,
-                float(self.crash_reward) if replace else 0.0)
+        return RewardWeights(w_p=float(self.w_p), w_v=float(self.w_v), w_a=float(self.w_a),
+                             alive_bonus=float(self.alive_bonus), replace_crash=replace,
+                             crash_reward=float(self.crash_reward) if replace else 0.0)
 
     def __call__(self, position: np.ndarray, velocity: np.ndarray, action: np.ndarray,
                  crashed: np.ndarray | None = None) -> np.ndarray:
@@ -64,5 +77,5 @@ class HoverReward:
         a = np.ascontiguousarray(np.atleast_2d(action), dtype=np.float64)
         crashed = np.zeros(len(p), dtype=np.bool_) if crashed is None else np.asarray(crashed, dtype=np.bool_)
         out = np.empty(len(p))
-        _batch_reward(p, v, a, crashed, *self.kernel_args, out)
+        _batch_reward(p, v, a, crashed, self.weights, out)
         return out

@@ -1,7 +1,18 @@
 """The interface every simulator backend implements."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+
+
+class Vehicles(NamedTuple):
+    """A backend's state arrays (the same objects, not copies), as compiled code takes them."""
+    x: np.ndarray             # (N,3) world position
+    v: np.ndarray             # (N,3) world velocity
+    q: np.ndarray             # (N,4) attitude quaternion (i, j, k, w), body to world
+    w: np.ndarray             # (N,3) body rates
+    rotor_speeds: np.ndarray  # (N,R) rad/s
 
 
 class Backend:
@@ -21,6 +32,10 @@ class Backend:
         self.q = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n, 1))
         self.w = np.zeros((n, 3))
         self.rotor_speeds = np.zeros((n, params["num_rotors"]))
+
+    @property
+    def vehicles(self) -> Vehicles:
+        return Vehicles(self.x, self.v, self.q, self.w, self.rotor_speeds)
 
     def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
         """Advance all vehicles by ``dt`` under constant commanded rotor speeds (N,4) and wind (N,3)."""

@@ -19,7 +19,7 @@ contact is not modelled, as in the hover task's ``enable_ground=False``).
 
 The step is one numba-compiled loop over vehicles (``step_vehicles``); the compiled rollout
 (``sweep.agents.rollout``) calls the same function. Its inputs are two named tuples: ``Vehicles`` (the
-state arrays, stepped in place) and ``Physics`` (the model's constants, read from RotorPy's params).
+backend's state arrays, stepped in place) and ``Physics`` (the model's constants, read from RotorPy's params).
 """
 from __future__ import annotations
 
@@ -28,17 +28,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from sweep.envs.backends.base import Backend
+from sweep.envs.backends.base import Backend, Vehicles
 from sweep.envs.vehicle import GRAVITY
-
-
-class Vehicles(NamedTuple):
-    """N vehicles' state in RotorPy's layout (``Backend``'s arrays, float64), stepped in place."""
-    x: np.ndarray             # (N,3) world position
-    v: np.ndarray             # (N,3) world velocity
-    q: np.ndarray             # (N,4) attitude quaternion (i, j, k, w), body to world
-    w: np.ndarray             # (N,3) body rates
-    rotor_speeds: np.ndarray  # (N,R) rad/s
 
 
 class Physics(NamedTuple):
@@ -169,7 +160,7 @@ def _deriv_one(s, cmd, wind, p, out):
 
 
 @numba.njit(cache=True)
-def step_vehicles(vehicles, cmd, wind, p):
+def step_vehicles(vehicles: Vehicles, cmd, wind, p: Physics):
     """Advance every vehicle of ``vehicles`` (in place) by ``p.dt`` under commanded rotor speeds ``cmd`` (N,R)
     and wind ``wind`` (N,3)."""
     x, v, q, w, rs = vehicles
@@ -225,11 +216,6 @@ class FastBackend(Backend):
     def __init__(self, n: int, params: dict, dt: float) -> None:
         super().__init__(n, params, dt)
         self.physics = physics(params, self.dt)
-
-    @property
-    def vehicles(self) -> Vehicles:
-        """The state arrays (the same objects, not copies) as ``step_vehicles`` takes them."""
-        return Vehicles(self.x, self.v, self.q, self.w, self.rotor_speeds)
 
     def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
         step_vehicles(self.vehicles, np.ascontiguousarray(cmd_rotor_speeds, dtype=np.float64),
