@@ -31,7 +31,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sweep.envs.backends import make_backend
 from sweep.envs.backends.base import Vehicles
-from sweep.envs.backends.fast import Physics
+from sweep.envs.backends.fast import Physics, rotation_matrix
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
@@ -58,12 +58,10 @@ def rotor_speed_to_action(speed, speed_min, speed_max):
 def quat_to_euler_xyz(q, out):
     """Roll, pitch, yaw of a scalar-last quaternion: extrinsic x-y-z, i.e. scipy's ``as_euler("xyz")``
     (R = Rz(yaw) Ry(pitch) Rx(roll); roll = atan2(R21, R22), pitch = -asin(R20), yaw = atan2(R10, R00))."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    n2 = x * x + y * y + z * z + w * w
-    r20 = 2.0 * (x * z - w * y) / n2
-    out[0] = math.atan2(2.0 * (y * z + w * x), w * w - x * x - y * y + z * z)
+    r00, _, _, r10, _, _, r20, r21, r22 = rotation_matrix(q[0], q[1], q[2], q[3])
+    out[0] = math.atan2(r21, r22)
     out[1] = -math.asin(min(1.0, max(-1.0, r20)))
-    out[2] = math.atan2(2.0 * (x * y + w * z), w * w + x * x - y * y - z * z)
+    out[2] = math.atan2(r10, r00)
 
 
 class Task(NamedTuple):
