@@ -20,6 +20,7 @@ from omegaconf import DictConfig
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep import metrics
+from sweep.cadence import Cadence
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.factory import make_env
 
@@ -109,22 +110,20 @@ class PeriodicEvaluation(BaseCallback):
     def __init__(self, eval_cfg: DictConfig, env_cfg: DictConfig) -> None:
         super().__init__()
         self.eval_cfg, self.env_cfg = eval_cfg, env_cfg
-        self.every = self.next_at = int(eval_cfg.every_timesteps)
+        self.cadence = Cadence(eval_cfg.every_timesteps)
 
     def _on_step(self) -> bool:
         return True
 
     def _on_rollout_end(self) -> None:
-        if self.num_timesteps < self.next_at:
+        if not self.cadence.due(self.num_timesteps):
             return
-        while self.next_at <= self.num_timesteps:
-            self.next_at += self.every
         values, _ = evaluate(self.model, self.eval_cfg, self.env_cfg)
         for field, value in values.items():
             self.logger.record(metrics.eval_key("final", field), value)
 
     def state_dict(self) -> dict:
-        return {"next_at": self.next_at}
+        return {"next_at": self.cadence.next_at}
 
     def load_state_dict(self, state: dict) -> None:
-        self.next_at = state["next_at"]
+        self.cadence.next_at = state["next_at"]

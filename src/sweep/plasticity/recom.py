@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep.cadence import Cadence
+
 
 def retrospective_cost(returns: np.ndarray, losses: np.ndarray) -> float:
     """Eq. 5: mean of (-R + L) over the given episodes."""
@@ -77,18 +79,18 @@ class Recom(BaseCallback):
         self.episodes: deque[tuple[float, float]] = deque(maxlen=self.window + 1)
         self.last_loss: float | None = None
         self.cost_prev: float | None = None
-        self.next_update = self.interval
+        self.cadence = Cadence(self.interval)   # an LR update every `interval` timesteps
         self.schedule: AdaptiveLR | None = None
 
     # -- state (for checkpoints) --
     def state_dict(self) -> dict:
         return {"episodes": list(self.episodes), "last_loss": self.last_loss, "cost_prev": self.cost_prev,
-                "next_update": self.next_update, "lr": self.schedule.value if self.schedule else None}
+                "next_update": self.cadence.next_at, "lr": self.schedule.value if self.schedule else None}
 
     def load_state_dict(self, state: dict) -> None:
         self.episodes.clear()
         self.episodes.extend(tuple(e) for e in state["episodes"])
-        self.last_loss, self.cost_prev, self.next_update = state["last_loss"], state["cost_prev"], state["next_update"]
+        self.last_loss, self.cost_prev, self.cadence.next_at = state["last_loss"], state["cost_prev"], state["next_update"]
         self.schedule.value = state["lr"]  # called after _init_callback (see sweep.checkpoint)
 
     # -- SB3 hooks --
@@ -115,11 +117,8 @@ class Recom(BaseCallback):
         return True
 
     def _on_rollout_end(self) -> None:
-        if self.num_timesteps < self.next_update:
-            return
-        while self.next_update <= self.num_timesteps:
-            self.next_update += self.interval
-        self.update()
+        if self.cadence.due(self.num_timesteps):
+            self.update()
 
     def update(self) -> None:
         episodes = np.array(self.episodes, dtype=np.float64).reshape(-1, 2)
