@@ -21,11 +21,11 @@ import copy
 import numpy as np
 import pytest
 
-from sweep.envs.backends import make_backend
+from sweep.envs.backends import BACKENDS, make_backend
 from sweep.envs.backends.fast import FastBackend
 from sweep.envs.backends.rotorpy_backend import RotorPyBackend, RotorPyRK4Backend
 from sweep.envs.hover import HoverVecEnv, rotor_speed_to_action
-from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
+from sweep.envs.vehicle import GRAVITY, crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 
 DT = 0.01
@@ -116,10 +116,31 @@ def test_matches_rotorpy_solve_ivp_after_1s():
     _check(diff, TOL_IVP, ref)
 
 
-def test_registered():
-    p = crazyflie_params(0.05)
-    assert isinstance(make_backend("fast", 2, p, DT), FastBackend)
-    assert isinstance(make_backend("rotorpy_rk4", 2, p, DT), RotorPyRK4Backend)
+@pytest.mark.parametrize("name", sorted(BACKENDS))
+def test_make_backend_builds_each_registered_backend_and_it_flies_the_vehicle(name):
+    """Each registered name gives a backend of n vehicles stepped by dt: with the rotors stopped a vehicle falls
+    freely (z = -g t^2 / 2, v_z = -g t: no rotor force, no drag at zero rotor speed, and RK4 / RK45 are exact
+    on a parabola), and under hover commands with wind it flies as RotorPy's own derivative does."""
+    n, steps = 3, 30
+    p, wind, cmds, start = _scenario(n, steps, seed=4, noise=(0.0005, 0.002))
+    b = make_backend(name, n, p, DT)
+    assert (b.n, b.dt, b.x.shape, b.q.shape, b.rotor_speeds.shape) == (n, DT, (n, 3), (n, 4), (n, 4))
+    b.set_state({**start, "rotor_speeds": np.zeros((n, 4))})
+    for _ in range(steps):
+        b.step(np.zeros((n, 4)), np.zeros((n, 3)))
+    t = steps * DT
+    np.testing.assert_allclose(b.x[:, 2] - start["x"][:, 2], -0.5 * GRAVITY * t * t, rtol=1e-9)
+    np.testing.assert_allclose(b.v, np.tile([0.0, 0.0, -GRAVITY * t], (n, 1)), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b.x[:, :2], start["x"][:, :2], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(b.q, start["q"])
+    diff, ref = _run_pair(b, RotorPyRK4Backend(n, p, DT), wind, cmds, start)
+    _check(diff, TOL_IVP if name == "rotorpy" else TOL_RK4, ref)  # solve_ivp's adaptive error, else round-off
+    assert np.abs(ref.x - start["x"]).max() > 1e-3  # the wind moved them: the comparison is not trivial
+
+
+def test_make_backend_rejects_an_unknown_name():
+    with pytest.raises(ValueError, match="unknown"):
+        make_backend("fastest", 2, crazyflie_params(0.05), DT)
 
 
 def test_hover_env_fast_equals_rotorpy_rk4():
