@@ -227,7 +227,8 @@ class JaxPPO(OnPolicyAlgorithm):
             act=self._act, normalize_advantage=self.normalize_advantage, target_kl=self.target_kl))
         self._activations = jax.jit(partial(_hidden, nets=self._nets, act=self._act))
         self._grad_norm = jax.jit(partial(_grad_norm, nets=self._nets, act=self._act, ent_coef=float(self.ent_coef),
-                                          vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage))
+                                          vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage,
+                                          clip_range=float(self.clip_range)))
         self._export_weights()
 
     def use_l2(self, coef: float, mode: str = "decoupled", params=("policy", "value"), biases: bool = True,
@@ -470,10 +471,11 @@ def _hidden(params, obs, *, nets, act):
     return mlp_forward(params, nets[0], obs, act)[1], mlp_forward(params, nets[1], obs, act)[1]
 
 
-def _grad_norm(params, batch, *, nets, act, ent_coef, vf_coef, normalize_advantage):
-    """Global norm of the PPO loss gradient with the rollout policy = the current one (ratio 1)."""
+def _grad_norm(params, batch, *, nets, act, ent_coef, vf_coef, normalize_advantage, clip_range):
+    """Global norm of the PPO loss gradient with the rollout policy = the current one (ratio 1: the clip is
+    inactive, so the learner's own ``clip_range`` is passed only to keep the loss the one ``ppo_loss``)."""
     mean, _ = mlp_forward(params, nets[0], batch["observations"], act)
     old = jax.lax.stop_gradient(gaussian_log_prob(batch["actions"], mean, params["log_std"]))
-    grads = jax.grad(lambda p: ppo_loss(p, {**batch, "old_log_prob": old}, 0.2, ent_coef, vf_coef, nets, act,
+    grads = jax.grad(lambda p: ppo_loss(p, {**batch, "old_log_prob": old}, clip_range, ent_coef, vf_coef, nets, act,
                                         normalize_advantage)[0])(params)
     return optax.global_norm(grads)
