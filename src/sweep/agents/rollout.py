@@ -139,6 +139,8 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
     vehicles, physics, outcome = env.vehicles, env.physics, env.outcome
     t_idx, ep_return, reward_scale = env.t_idx, env.ep_return, env.reward_scale
     rewards, terminated, truncated = outcome.rewards, outcome.terminated, outcome.truncated
+    task = env.task
+    buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs = buffer  # read once: see step_vehicles
     n, n_act = obs.shape[0], noise.shape[2]
     width = widest(widest(obs.shape[1], pi), vf)
     h_in = np.empty(width, np.float32)
@@ -161,20 +163,20 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
             for a in range(n_act):
                 eps = noise[t, i, a]
                 action = mean[a] + std[a] * eps
-                buffer.actions[t, i, a] = action
+                buf_actions[t, i, a] = action
                 c = min(max(action, np.float32(-1.0)), np.float32(1.0))
                 clipped[i, a] = c
                 cmd[i, a] = action_to_rotor_speed(c, speed_min, speed_max)
                 log_prob -= 0.5 * eps * eps
-            buffer.log_probs[t, i] = log_prob - log_norm
-            buffer.values[t, i] = value[0]
-            buffer.episode_starts[t, i] = episode_starts[i]
+            buf_log_probs[t, i] = log_prob - log_norm
+            buf_values[t, i] = value[0]
+            buf_starts[t, i] = episode_starts[i]
             for k in range(obs.shape[1]):
-                buffer.observations[t, i, k] = obs[i, k]
+                buf_obs[t, i, k] = obs[i, k]
             for k in range(3):
                 wind_now[i, k] = wind[t, k]
         step_vehicles(vehicles, cmd, wind_now, physics)
-        task_outcome(vehicles, clipped, t_idx, env.task, obs, outcome)
+        task_outcome(vehicles, clipped, t_idx, task, obs, outcome)
         any_done = False
         for i in range(n):
             ep_return[i] += rewards[i]
@@ -182,7 +184,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
             if truncated[i]:
                 mlp(obs[i], vf, relu, layer_norm, h_in, h_out, value)
                 reward += np.float32(gamma) * value[0]
-            buffer.rewards[t, i] = reward
+            buf_rewards[t, i] = reward
             dones[i] = terminated[i] or truncated[i]
             episode_starts[i] = dones[i]
             any_done = any_done or dones[i]

@@ -103,20 +103,21 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome):
     rewards, crashed, terminated, truncated = outcome
     world_bound, terminate_at_limit, v_scale, w_scale = (task.world_bound, task.terminate_at_limit,
                                                          task.velocity_scale, task.body_rate_scale)
+    episode_steps, euler, weights = task.episode_steps, task.euler, task.reward  # fields read once, not per vehicle
     for i in range(x.shape[0]):
         t_idx[i] += 1
         out = False
         for a in range(3):
             out = out or abs(x[i, a]) > world_bound or abs(v[i, a]) > SAFE_SPEED or abs(w[i, a]) > SAFE_RATE
-        rewards[i] = step_reward(x[i], v[i], actions[i], out, task.reward)
-        at_limit = t_idx[i] >= task.episode_steps and not out
+        rewards[i] = step_reward(x[i], v[i], actions[i], out, weights)
+        at_limit = t_idx[i] >= episode_steps and not out
         crashed[i] = out
         terminated[i] = out or (at_limit and terminate_at_limit)
         truncated[i] = at_limit and not terminate_at_limit
         for a in range(3):
             obs[i, a] = x[i, a]
             obs[i, 3 + a] = v[i, a] * v_scale
-        if task.euler:
+        if euler:
             quat_to_euler_xyz(q[i], obs[i, 6:9])
             for a in range(3):
                 obs[i, 9 + a] = w[i, a] * w_scale

@@ -98,7 +98,9 @@ def rotation_matrix(q0, q1, q2, q3):
 def _deriv_one(s, cmd, wind, p, out):
     """One vehicle's state derivative into ``out``; ``s`` is x(3) v(3) q(4) w(3) rotor speeds(R)."""
     geo, rdir, inertia, inv_inertia, c_d = p.rotor_geometry, p.rotor_dir, p.inertia, p.inv_inertia, p.c_d
+    # every field read once, here: a field read inside the rotor loop costs ~30% of the step's speed
     k_eta, k_m, k_d, k_z, k_h, k_flap = p.k_eta, p.k_m, p.k_d, p.k_z, p.k_h, p.k_flap
+    mass, inv_tau_m = p.mass, p.inv_tau_m
     nrot = geo.shape[0]
     q0, q1, q2, q3 = s[6], s[7], s[8], s[9]
     w0, w1, w2 = s[10], s[11], s[12]
@@ -131,13 +133,12 @@ def _deriv_one(s, cmd, wind, p, out):
         m0 += g1 * h2 - g2 * h1 - k_flap * om * u1
         m1 += g2 * h0 - g0 * h2 + k_flap * om * u0
         m2 += g0 * h1 - g1 * h0 + rdir[i] * k_m * om * om
-        out[13 + i] = (cmd[i] - om) * p.inv_tau_m
+        out[13 + i] = (cmd[i] - om) * inv_tau_m
     nb = (vb0 * vb0 + vb1 * vb1 + vb2 * vb2) ** 0.5
     f0 -= nb * c_d[0] * vb0
     f1 -= nb * c_d[1] * vb1
     f2 -= nb * c_d[2] * vb2
 
-    mass = p.mass
     out[0] = s[3]
     out[1] = s[4]
     out[2] = s[5]
