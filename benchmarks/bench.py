@@ -118,12 +118,23 @@ def bench_fast(n: int) -> float:
     return _rate(lambda: b.step(cmd, wind), n, SIM_SECONDS)
 
 
+def backend_class(name: str):
+    """The simulator class ``env.backend=<name>`` builds (conf/backend/<name>.yaml)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
+
+    from sweep.tracking import PROJECT_ROOT
+
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        return instantiate(compose(config_name="config").env.backends[name])
+
+
 def bench_env(backend: str, n_envs: int) -> float:
     """HoverVecEnv alone (no policy): timesteps/s under uniform random actions."""
     from sweep.envs.hover import HoverVecEnv
     from sweep.envs.wind import WindSchedule
 
-    env = HoverVecEnv(n_envs=n_envs, backend=backend, wind=WindSchedule.constant(3.0), seed=0)
+    env = HoverVecEnv(n_envs=n_envs, backend=backend_class(backend), wind=WindSchedule.constant(3.0), seed=0)
     env.reset()
     acts = np.random.default_rng(0).uniform(-1, 1, size=(1024, n_envs, 4)).astype(np.float32)
     box = {"k": 0}
@@ -173,7 +184,7 @@ def ppo_run(backend: str, n_envs: int, seed: int = 0, rollouts: int = PPO_ROLLOU
     from sweep.envs.hover import HoverVecEnv
     from sweep.envs.wind import WindSchedule
 
-    env = HoverVecEnv(n_envs=n_envs, backend=backend, wind=WindSchedule.constant(3.0), seed=seed)
+    env = HoverVecEnv(n_envs=n_envs, backend=backend_class(backend), wind=WindSchedule.constant(3.0), seed=seed)
     if learner == "jax":
         from sweep.agents.jax_ppo import JaxPPO
 
@@ -332,12 +343,9 @@ def main() -> int:
     if sys.argv[1:] == ["remedies"]:
         rows += remedy_rows()
         return _print_table(rows, t_start, load0)
-    try:
-        import numba
+    import numba
 
-        nb = f"numba {numba.__version__}"
-    except ImportError:
-        nb = "no numba (FastBackend on its NumPy path)"
+    nb = f"numba {numba.__version__}"
     print(f"# bench: {platform.python_version()}, numpy {np.__version__}, torch {torch.__version__}, {nb}, "
           f"{os.cpu_count()} cpus, load avg at start {load0[0]:.2f}", flush=True)
 

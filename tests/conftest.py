@@ -21,6 +21,13 @@ def compose_cfg(overrides: list[str] | None = None):
         return compose(config_name="config", overrides=overrides or [])
 
 
+def backend(name: str):
+    """The simulator class ``env.backend=<name>`` builds (conf/backend/<name>.yaml, by its _target_)."""
+    from hydra.utils import instantiate
+
+    return instantiate(compose_cfg().env.backends[name])
+
+
 @pytest.fixture(autouse=True)
 def checkpoint_dir(tmp_path, monkeypatch) -> Path:
     """Checkpoints of test runs go to the test's temp dir, never to <project root>/checkpoints."""

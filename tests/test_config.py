@@ -156,8 +156,9 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         empty = schema(config_name="sweep_schema")
-    assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent.recom, "gain")
-    OmegaConf.set_struct(empty.agent.learners, False)  # a Dict node: Hydra's struct flag would refuse new keys
+    assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent, "learner") and OmegaConf.is_missing(empty.agent.recom, "gain")
+    for node in (empty.agent.learners, empty.env.backends):  # Dict nodes: Hydra's struct flag would refuse new keys
+        OmegaConf.set_struct(node, False)
     typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=recom_l2"]), resolve=True))
     assert isinstance(typed.agent.recom.gradient, Enum) and typed.agent.recom.gradient.value == "absolute"
     assert typed.agent.recom.gain == 5e-6 and typed.env.n_envs == 1

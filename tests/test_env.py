@@ -104,12 +104,14 @@ def test_action_to_rotor_speed_is_linear_onto_the_rotor_range_and_inverted_by_ro
     np.testing.assert_array_equal(compiled, action_to_rotor_speed.py_func(a32.astype(np.float64), lo, hi))
 
 
+from conftest import backend as backend_class  # noqa: E402
+
 BACKENDS = ["rotorpy", "fast"]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_hover_action_without_wind_stays_near_start_for_one_second(backend):
-    env = HoverVecEnv(n_envs=3, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=3)
+    env = HoverVecEnv(n_envs=3, backend=backend_class(backend), wind=WindSchedule(speeds=[0.0]), seed=3)
     obs = env.reset()
     start = obs[:, :3].copy()
     for _ in range(100):
@@ -120,7 +122,7 @@ def test_hover_action_without_wind_stays_near_start_for_one_second(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_wind_pushes_the_vehicle_downwind(backend):
-    env = HoverVecEnv(n_envs=1, backend=backend, wind=WindSchedule(speeds=[3.0], direction=[1, 0, 0]), seed=3)
+    env = HoverVecEnv(n_envs=1, backend=backend_class(backend), wind=WindSchedule(speeds=[3.0], direction=[1, 0, 0]), seed=3)
     obs = env.reset()
     x0 = obs[0, 0]
     for _ in range(100):
@@ -130,7 +132,7 @@ def test_wind_pushes_the_vehicle_downwind(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_time_limit_is_per_env_truncation_with_own_terminal_observation(backend):
-    env = HoverVecEnv(n_envs=3, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=1, episode_seconds=0.2)
+    env = HoverVecEnv(n_envs=3, backend=backend_class(backend), wind=WindSchedule(speeds=[0.0]), seed=1, episode_seconds=0.2)
     env.reset()
     for step in range(1, 21):
         before = env.sim.x.copy()
@@ -159,7 +161,7 @@ def test_episode_is_exactly_500_steps():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_out_of_bounds_is_termination_not_truncation(backend):
-    env = HoverVecEnv(n_envs=2, backend=backend, wind=WindSchedule(speeds=[0.0]), seed=0)
+    env = HoverVecEnv(n_envs=2, backend=backend_class(backend), wind=WindSchedule(speeds=[0.0]), seed=0)
     env.reset()
     actions = hover_action(env)
     actions[0] = 1.0  # full throttle on vehicle 0: climbs out of the +-4 m box

@@ -21,7 +21,7 @@ import copy
 import numpy as np
 import pytest
 
-from sweep.envs.backends import BACKENDS, make_backend
+from conftest import CONF, backend, compose_cfg
 from sweep.envs.backends.fast import FastBackend
 from sweep.envs.backends.rotorpy_backend import RotorPyBackend, RotorPyRK4Backend
 from sweep.envs.hover import HoverVecEnv, rotor_speed_to_action
@@ -116,14 +116,14 @@ def test_matches_rotorpy_solve_ivp_after_1s():
     _check(diff, TOL_IVP, ref)
 
 
-@pytest.mark.parametrize("name", sorted(BACKENDS))
-def test_make_backend_builds_each_registered_backend_and_it_flies_the_vehicle(name):
-    """Each registered name gives a backend of n vehicles stepped by dt: with the rotors stopped a vehicle falls
+@pytest.mark.parametrize("name", sorted(p.stem for p in (CONF / "backend").glob("*.yaml")))
+def test_each_configured_backend_builds_and_flies_the_vehicle(name):
+    """Each conf/backend/ name (env.backends, built by its _target_) gives a backend of n vehicles stepped by dt: with the rotors stopped a vehicle falls
     freely (z = -g t^2 / 2, v_z = -g t: no rotor force, no drag at zero rotor speed, and RK4 / RK45 are exact
     on a parabola), and under hover commands with wind it flies as RotorPy's own derivative does."""
     n, steps = 3, 30
     p, wind, cmds, start = _scenario(n, steps, seed=4, noise=(0.0005, 0.002))
-    b = make_backend(name, n, p, DT)
+    b = backend(name)(n=n, params=p, dt=DT)
     assert (b.n, b.dt, b.x.shape, b.q.shape, b.rotor_speeds.shape) == (n, DT, (n, 3), (n, 4), (n, 4))
     b.set_state({**start, "rotor_speeds": np.zeros((n, 4))})
     for _ in range(steps):
@@ -138,9 +138,11 @@ def test_make_backend_builds_each_registered_backend_and_it_flies_the_vehicle(na
     assert np.abs(ref.x - start["x"]).max() > 1e-3  # the wind moved them: the comparison is not trivial
 
 
-def test_make_backend_rejects_an_unknown_name():
-    with pytest.raises(ValueError, match="unknown"):
-        make_backend("fastest", 2, crazyflie_params(0.05), DT)
+def test_an_unknown_backend_name_is_a_config_error():
+    from sweep.config import ConfigError, validate
+
+    with pytest.raises(ConfigError, match=r"^env\.backend='fastest': must be one of fast\|rotorpy\|rotorpy_rk4"):
+        validate(compose_cfg(["env.backend=fastest"]))
 
 
 def test_hover_env_fast_equals_rotorpy_rk4():
@@ -148,7 +150,7 @@ def test_hover_env_fast_equals_rotorpy_rk4():
     n, steps = 4, 1100
     # light wind for the first 600 vector steps (uncontrolled vehicles last a whole episode), then 3 m/s
     wind = WindSchedule(speeds=(0.3, 3.0), segment_steps=600 * n, direction=(1.0, 1.0, 0.3))
-    envs = [HoverVecEnv(n_envs=n, backend=b, wind=wind, seed=123) for b in ("fast", "rotorpy_rk4")]
+    envs = [HoverVecEnv(n_envs=n, backend=backend(b), wind=wind, seed=123) for b in ("fast", "rotorpy_rk4")]
     obs = [e.reset() for e in envs]
     np.testing.assert_array_equal(obs[0], obs[1])
     p = crazyflie_params(0.05)

@@ -31,7 +31,6 @@ def choice(name: str, *values: str) -> type[Enum]:
     return Enum(name, {v: v for v in values})
 
 
-Backend = choice("Backend", "fast", "rotorpy", "rotorpy_rk4")
 Observation = choice("Observation", "quaternion", "euler")
 TimeLimit = choice("TimeLimit", "truncate", "terminate")
 AfterList = choice("AfterList", "repeat", "hold")
@@ -106,8 +105,16 @@ class ObservationScale:
 
 
 @dataclass
+class Target:
+    """A class (or function) built by hydra.utils.instantiate: conf/learner/, conf/backend/."""
+    _target_: str = MISSING
+    _partial_: bool = True
+
+
+@dataclass
 class Env:
-    backend: Backend = MISSING
+    backend: str = MISSING   # a key of backends: checked in _cross_rules
+    backends: Dict[str, Target] = field(default_factory=dict)
     n_envs: int = positive_int()
     sim_rate: float = positive(" (Hz)")
     episode_seconds: float = positive(" (s)")
@@ -264,18 +271,11 @@ class CBP(Remedy):
 
 
 @dataclass
-class LearnerTarget:
-    """A conf/learner/ file: the learner class's ``from_config``, built by hydra.utils.instantiate."""
-    _target_: str = MISSING
-    _partial_: bool = True
-
-
-@dataclass
 class Agent:
     name: str = MISSING
     label: str = MISSING
     learner: str = MISSING   # a key of learners: checked in _cross_rules
-    learners: Dict[str, LearnerTarget] = field(default_factory=dict)
+    learners: Dict[str, Target] = field(default_factory=dict)
     ppo: PPO = field(default_factory=PPO)
     policy: Policy = field(default_factory=Policy)
     l2: WeightDecay = field(default_factory=WeightDecay)
@@ -373,6 +373,8 @@ def validate(cfg: DictConfig) -> None:
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent
+    if c.env.backend not in c.env.backends:
+        raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:
         raise ConfigError(f"agent.learner={a.learner!r}: must be one of {'|'.join(a.learners)} (conf/learner/)")
     if a.recom.lr_min > a.recom.lr_max:
@@ -392,6 +394,6 @@ def _cross_rules(c: DictConfig) -> None:
         if rollout % batch:
             raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be a divisor of the rollout size "
                               f"agent.ppo.n_steps x env.n_envs = {rollout} with agent.learner=jax")
-        if c.env.backend.value != "fast":
-            raise ConfigError(f"env.backend={c.env.backend.value!r}: must be fast with agent.learner=jax (its compiled "
+        if c.env.backend != "fast":
+            raise ConfigError(f"env.backend={c.env.backend!r}: must be fast with agent.learner=jax (its compiled "
                               "rollout steps the fast backend)")

@@ -1,6 +1,7 @@
 """The hover env of an ``env`` config (conf/config.yaml ``env:``), for training and for evaluation."""
 from __future__ import annotations
 
+from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from sweep.envs.hover import HoverVecEnv
@@ -9,10 +10,11 @@ from sweep.envs.wind import WindSchedule
 
 
 def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False) -> HoverVecEnv:
-    """The hover env of ``env_cfg`` with ``n_envs`` vehicles; the reward it returns is scaled by
-    ``env.reward_scale`` only for a learner (``learning=True``): evaluations see the task's reward."""
+    """The hover env of ``env_cfg`` with ``n_envs`` vehicles on the backend ``env.backend`` names among
+    ``env.backends``; the reward it returns is scaled by ``env.reward_scale`` only for a learner
+    (``learning=True``): evaluations see the task's reward."""
     return HoverVecEnv(
-        n_envs=n_envs, backend=env_cfg.backend, wind=wind, reward=HoverReward(**env_cfg.reward),
+        n_envs=n_envs, backend=instantiate(env_cfg.backends[env_cfg.backend]), wind=wind, reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
         observation=env_cfg.observation, time_limit=env_cfg.time_limit,

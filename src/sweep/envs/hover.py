@@ -22,16 +22,15 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 from gymnasium import spaces
 import numba
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
-from sweep.envs.backends import make_backend
-from sweep.envs.backends.base import Vehicles
-from sweep.envs.backends.fast import Physics, rotation_matrix
+from sweep.envs.backends.base import Backend, Vehicles
+from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
@@ -132,7 +131,7 @@ class HoverVecEnv(VecEnv):
     def __init__(
         self,
         n_envs: int = 1,
-        backend: str = "fast",
+        backend: Callable[..., Backend] = FastBackend,
         wind: WindSchedule | None = None,
         reward: HoverReward | None = None,
         sim_rate: float = 100.0,
@@ -162,7 +161,7 @@ class HoverVecEnv(VecEnv):
         self.observation = observation
         self.wind = wind or WindSchedule()
         self.reward_fn = reward or HoverReward()
-        self.sim = make_backend(backend, n_envs, self.params, self.dt)
+        self.sim = backend(n=n_envs, params=self.params, dt=self.dt)
         self.hover_speed = hover_rotor_speed(self.params)
         self.speed_min = float(self.params["rotor_speed_min"])
         self.speed_max = float(self.params["rotor_speed_max"])
