@@ -106,15 +106,20 @@ class ObservationScale:
 
 @dataclass
 class Target:
-    """A class (or function) built by hydra.utils.instantiate: conf/learner/, conf/backend/."""
+    """A block built by hydra.utils.instantiate from its ``_target_``."""
     _target_: str = MISSING
+
+
+@dataclass
+class Factory(Target):
+    """A class (or its from_config) that the code calls later: conf/learner/, conf/backend/."""
     _partial_: bool = True
 
 
 @dataclass
 class Env:
     backend: str = MISSING   # a key of backends: checked in _cross_rules
-    backends: Dict[str, Target] = field(default_factory=dict)
+    backends: Dict[str, Factory] = field(default_factory=dict)
     n_envs: int = positive_int()
     sim_rate: float = positive(" (Hz)")
     episode_seconds: float = positive(" (s)")
@@ -216,9 +221,8 @@ class Policy:
 
 
 @dataclass
-class Remedy:
+class Remedy(Target):
     """A conf/remedy/ block: the callback it builds and whether the agent uses it."""
-    _target_: str = MISSING
     enabled: bool = MISSING
 
 
@@ -275,7 +279,7 @@ class Agent:
     name: str = MISSING
     label: str = MISSING
     learner: str = MISSING   # a key of learners: checked in _cross_rules
-    learners: Dict[str, Target] = field(default_factory=dict)
+    learners: Dict[str, Factory] = field(default_factory=dict)
     ppo: PPO = field(default_factory=PPO)
     policy: Policy = field(default_factory=Policy)
     l2: WeightDecay = field(default_factory=WeightDecay)
