@@ -25,7 +25,7 @@ def test_the_report_reads_its_keys_and_panels_from_the_registry():
     assert set(drawn) <= set(load.CURVE_KEYS) | set(load.OPTIONAL_KEYS)  # a panel's key is always loaded
     assert set(load.CURVE_KEYS).isdisjoint(load.OPTIONAL_KEYS)
     assert list(figures.CURVES) == ["reward", "episode_length", "dormant", "weight_norm", "learning_rate",
-                                    "eval_success", "eval_crash", "ppo_update"]
+                                    "eval_success", "eval_crash", "ppo_update", "probe"]
     assert all(panels[0].always or panels[0].sparse or panels[0].figure == "ppo_update"
                for panels in figures.CURVES.values())
     assert set(stats.FINALS.values()) <= set(load.CURVE_KEYS) | set(load.OPTIONAL_KEYS)

@@ -717,7 +717,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "best")
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
-    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES}
+    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes"})
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
@@ -862,7 +862,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "old")
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
-    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES}
+    assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes"})
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
@@ -927,3 +927,33 @@ def test_unknown_experiment_is_one_error_line_and_exit_1(store, monkeypatch, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("sweep.report: unknown experiment 'no-such-experiment'")
     assert EXPERIMENT in err[0]
+
+
+def test_probe_table_and_figure_from_hand_built_probe_losses(tmp_path):
+    """probe.md / probe.csv: the probe loss at each step it was logged (wind changes, the end), mean ± 95% t CI
+    over seeds per agent; the probe figure is drawn; a store without probes writes neither (HAND)."""
+    from scipy import stats as sst
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("probe")
+    losses = {("ppo", 0): [0.010, 0.020, 0.040], ("ppo", 1): [0.012, 0.018, 0.050], ("l2", 0): [0.010, 0.011, 0.012]}
+    for (agent, seed), values in losses.items():
+        run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                 "run_name": f"{agent}-s{seed}"}).info.run_id
+        metrics = [Metric("rollout/ep_rew_mean", -100.0 + s / 100, 0, int(s)) for s in range(0, 3001, 500)]
+        metrics += [Metric("plasticity/probe_loss", v, 0, step) for v, step in zip(values, (1000, 2000, 3000))]
+        metrics += [Metric("plasticity/probe_loss_early", 10 * v, 0, step) for v, step in zip(values, (1000, 2000, 3000))]
+        client.log_batch(run_id, metrics=metrics)
+        client.set_terminated(run_id)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "probe")
+    assert code == 0, stdout + stderr
+    numbers = pd.read_csv(tmp_path / "out" / "probe.csv")
+    ppo_end = numbers[(numbers["agent"] == "ppo") & (numbers["step"] == 3000)].iloc[0]
+    assert ppo_end["mean"] == pytest.approx(0.045) and ppo_end["n_seeds"] == 2
+    assert ppo_end["ci95"] == pytest.approx(sst.t.ppf(0.975, 1) * np.std([0.04, 0.05], ddof=1) / np.sqrt(2))
+    shown = md_table(tmp_path / "out" / "probe.md").set_index("Agent")
+    assert list(shown.columns[-3:]) == ["1k", "2k", "3k"] and shown.loc["L2 + PPO", "3k"] == "0.012"
+    assert (tmp_path / "out" / "probe_paper.png").exists()
+    summary = pd.read_csv(tmp_path / "out" / "summary.csv").set_index("agent")
+    assert summary.loc["ppo", "final_probe_loss"] == pytest.approx(0.045)  # the last probe (within the last 10%)

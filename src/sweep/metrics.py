@@ -115,9 +115,17 @@ CURVES = (
     Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True),
     Curve("train/approx_kl", "Approx. KL\nper update", "ppo_update", logy=True),
     Curve("train/clip_fraction", "Clip fraction (%)", "ppo_update", 100.0, percent=True),
+    # the plasticity probe (Lyle et al. 2022): a copy of the policy net fitted to random targets at every wind
+    # change and at the end; a net that has lost plasticity fits worse (higher loss)
+    Curve("plasticity/probe_loss", "Probe loss\n(after N steps)", "probe", logy=True, sparse=True,
+          note="Probe: a copy of the policy net fitted for plasticity.probe.steps Adam steps to fixed random targets "
+               "on recent observations, at every wind change and at the end; higher = fits worse.",
+          final="final_probe_loss", title="Final probe loss", digits=4),
+    Curve("plasticity/probe_loss_early", "Probe loss\n(after N/10 steps)", "probe", logy=True, sparse=True),
     Curve("recom/at_bound"),   # RECOM: 1 where an LR update was clipped to a bound (the summary's share)
 )
 AT_BOUND = "recom/at_bound"
+PROBE = "plasticity/probe_loss"
 
 # figure file stem -> its panels, top to bottom (the first panel's metric decides whether the figure is drawn)
 FIGURES: dict[str, list[Curve]] = {}

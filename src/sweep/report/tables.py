@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from sweep import metrics
-from sweep.metrics import CURVES, FINALS, TABLE3
+from sweep.metrics import CURVES, FINALS, PROBE, TABLE3
 from sweep.report import stats
 from sweep.report.conditions import Conditions, baseline_of
 
@@ -206,6 +206,21 @@ def segments(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions) -> tuple[
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
+def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key: str) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A metric logged at a few steps (e.g. the probe at every wind change): (numbers: one row per condition x wind
+    x step with the seed mean / ci95 / n, display table: one row per condition x wind, one column per step)."""
+    df = runs[["run_id", "wind", "condition"]].merge(histories[histories["key"] == key], on="run_id")
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        shown = {"Agent": cond, "Wind": wind, "Seeds": g["run_id"].nunique()}
+        for step, s in g.groupby("step"):
+            mean, half, n = stats.mean_t_ci(s["value"])
+            numbers.append({**_identity(conds, cond, wind), "step": int(step), "mean": mean, "ci95": half, "n_seeds": n})
+            shown[_steps(int(step))] = f"{mean:.3g}" + (f" ± {half:.2g}" if np.isfinite(half) else "")
+        display.append(shown)
+    return pd.DataFrame(numbers), pd.DataFrame(display)
+
+
 def _fixed(value: float, digits: int) -> str:
     return f"{value:.{digits}f}" if np.isfinite(value) else "–"
 
@@ -270,8 +285,19 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         "over seeds. A policy that collapses shows as a falling row; one that adapts, as a row that recovers "
         "after each change.\n\n" + markdown(seg_display.fillna("–")))
     (out / "brief.txt").write_text(brief(s_display))
-    return [out / f for f in ("table3.csv", "table3.md", "table3.tex", "summary.csv", "summary.md",
-                              "segments.csv", "segments.md", "brief.txt")]
+    written = [out / f for f in ("table3.csv", "table3.md", "table3.tex", "summary.csv", "summary.md",
+                                 "segments.csv", "segments.md", "brief.txt")]
+    if (histories["key"] == PROBE).any():
+        p_numbers, p_display = at_steps(runs, histories, conds, PROBE)
+        p_numbers.to_csv(out / "probe.csv", index=False)
+        (out / "probe.md").write_text(
+            "Plasticity probe (Lyle et al. 2022; plasticity/probe_loss): a copy of the policy network fitted for "
+            "plasticity.probe.steps Adam steps to fixed random targets on the most recent observations, at every "
+            "wind change and at the end of training (the column: the timestep); the final regression loss, mean ± "
+            "95% Student-t CI over seeds. A network that has lost plasticity fits worse: a rising row.\n\n"
+            + markdown(p_display.fillna("–")))
+        written += [out / "probe.csv", out / "probe.md"]
+    return written
 
 
 BRIEF = ("Agent", "Wind", "Seeds", "Eval success final (%)", "Eval success best (%)", "Eval crash final (%)",
