@@ -957,3 +957,23 @@ def test_probe_table_and_figure_from_hand_built_probe_losses(tmp_path):
     assert (tmp_path / "out" / "probe_paper.png").exists()
     summary = pd.read_csv(tmp_path / "out" / "summary.csv").set_index("agent")
     assert summary.loc["ppo", "final_probe_loss"] == pytest.approx(0.045)  # the last probe (within the last 10%)
+
+
+def test_reward_at_steps_gives_the_iqm_and_its_difference_to_the_baseline(tmp_path):
+    """--at: per run the last reward logged at or before each step; HAND at step 550 (logged at 500): PPO seeds
+    -50 and -57.5 (IQM of two = their mean), RECOM -50 x 3; Δ = 3.75 with a bootstrap CI of exactly [0, 7.5]
+    (PPO's resamples are {-50,-50}, mixed, {-57.5,-57.5}); without --at no such file."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_hand_runs(MlflowClient(uri))
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", HAND, "--by", "agent.l2.coef",
+                                      "--baseline", "agent=ppo", "--at", "550,1000")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "reward_at.csv").set_index(["agent", "step"])
+    assert got.loc[("ppo", 550), "iqm"] == pytest.approx(-53.75) and got.loc[("recom_l2", 550), "iqm"] == -50.0
+    row = got.loc[("recom_l2", 550)]
+    assert (row["delta_iqm"], row["delta_ci_low"], row["delta_ci_high"]) == pytest.approx((3.75, 0.0, 7.5))
+    # the last values -5, -15, -30: rliable's IQM trims int(0.25 n) = 0 of 3 runs per side, so their mean
+    assert got.loc[("recom_l2", 1000), "iqm"] == pytest.approx(-50 / 3)
+    assert np.isnan(got.loc[("ppo", 1000), "delta_iqm"])               # PPO is the baseline itself
+    code, _, _ = run_report(uri, tmp_path / "plain", "--experiment", HAND)
+    assert code == 0 and not (tmp_path / "plain" / "reward_at.md").exists()

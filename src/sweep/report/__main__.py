@@ -19,7 +19,7 @@ import numpy as np
 
 
 def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
-          baseline: str | None = None) -> Path:
+          baseline: str | None = None, at: list[int] = ()) -> Path:
     from mlflow.exceptions import MlflowException
 
     from sweep.report import conditions, figures, load, style, tables
@@ -73,7 +73,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
-    written += tables.write_tables(runs, histories, conds, out_dir, base)
+    written += tables.write_tables(runs, histories, conds, out_dir, base, at)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))
@@ -105,11 +105,16 @@ def main(argv: list[str] | None = None) -> int:
                              "the final reward minus that of the condition with KEY=VALUE and otherwise the same "
                              "agent, --by values and wind (KEY: agent or a --by key), e.g. agent=ppo or "
                              "agent.learner=sb3")
+    parser.add_argument("--at", metavar="STEP[,STEP...]", default=[],
+                        type=lambda s: [int(float(x)) for x in s.split(",") if x],
+                        help="also write reward_at.md/.csv: the IQM [95%% CI] of the training reward at these "
+                             "timesteps (and with --baseline the IQM difference to the baseline), e.g. "
+                             "--at 100000,250000,500000")
     args = parser.parse_args(argv)
     from sweep.report.load import ReportError
 
     try:
-        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline)
+        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from sweep import metrics
-from sweep.metrics import CURVES, FINALS, PROBE, TABLE3
+from sweep.metrics import CURVES, FINALS, PROBE, REWARD, TABLE3
 from sweep.report import stats
 from sweep.report.conditions import Conditions, baseline_of
 
@@ -221,6 +221,36 @@ def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
+def reward_at(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, steps: list[int],
+              baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The training reward at given timesteps: per run the last ``rollout/ep_rew_mean`` logged at or before each
+    step (itself a mean over the last 100 episodes); per condition x wind x step the rliable IQM over seeds with
+    its 95% CI and, with ``baseline`` = (KEY, VALUE), the IQM difference to the baseline condition with its 95%
+    CI. Returns (numbers, display: one row per condition x wind)."""
+    rewards = histories[histories["key"] == REWARD].sort_values("step")
+    at = {s: rewards[rewards["step"] <= s].groupby("run_id")["value"].last() for s in steps}
+    df = runs[["run_id", "wind", "condition"]].copy()
+    for s in steps:
+        df[s] = df["run_id"].map(at[s])
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        dw = df[df["wind"] == wind]
+        present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
+        base = baseline_of(present, cond, *baseline) if baseline is not None else None
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g)}
+        for s in steps:
+            iqm = stats.iqm_ci(g[s])
+            delta = stats.iqm_diff_ci(g[s], dw.loc[dw["condition"] == base, s]) if base is not None else (np.nan,) * 3
+            numbers.append({**_identity(conds, cond, wind), "step": s, "n_seeds": int(g[s].notna().sum()),
+                            "iqm": iqm[0], "iqm_ci_low": iqm[1], "iqm_ci_high": iqm[2], "baseline": base or "",
+                            "delta_iqm": delta[0], "delta_ci_low": delta[1], "delta_ci_high": delta[2]})
+            shown[f"IQM at {_steps(s)}"] = _interval(*iqm, 1)
+            if baseline is not None:
+                shown[f"Δ at {_steps(s)}"] = _interval(*delta, 1) if base is not None else ""
+        display.append(shown)
+    return pd.DataFrame(numbers), pd.DataFrame(display)
+
+
 def _fixed(value: float, digits: int) -> str:
     return f"{value:.{digits}f}" if np.isfinite(value) else "–"
 
@@ -232,7 +262,7 @@ def eval_wind(runs: pd.DataFrame) -> str:
 
 
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
-                 baseline: tuple[str, str] | None = None) -> list[Path]:
+                 baseline: tuple[str, str] | None = None, at: list[int] = ()) -> list[Path]:
     per_run = stats.per_run_curve_stats(histories)
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
@@ -297,6 +327,16 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             "95% Student-t CI over seeds. A network that has lost plasticity fits worse: a rising row.\n\n"
             + markdown(p_display.fillna("–")))
         written += [out / "probe.csv", out / "probe.md"]
+    if at:
+        a_numbers, a_display = reward_at(runs, histories, conds, list(at), baseline)
+        a_numbers.to_csv(out / "reward_at.csv", index=False)
+        vs = (f"; Δ = IQM minus that of the condition with {baseline[0]}={baseline[1]} and otherwise the same agent, "
+              "--by values and wind, 95% percentile-bootstrap CI resampling both") if baseline else ""
+        (out / "reward_at.md").write_text(
+            "Training reward at given timesteps (--at): per run the last rollout/ep_rew_mean logged at or before "
+            "the step (a mean over its last 100 episodes); IQM over seeds with its 95% stratified-bootstrap CI "
+            f"(rliable){vs}.\n\n" + markdown(a_display))
+        written += [out / "reward_at.csv", out / "reward_at.md"]
     return written
 
 
