@@ -313,6 +313,31 @@ def test_probe_fits_worse_once_units_are_saturated(name):
 
 
 @pytest.mark.parametrize("name", LEARNERS)
+def test_probe_fresh_reference_is_a_new_network_on_the_same_data(name):
+    """fresh=True fits a newly drawn network: it does not depend on the learner's weights (the same loss after
+    they are saturated), equals the fit of a learner whose weights are that draw, and a saturated network fits
+    worse than it."""
+    from sweep.agents.networks import fresh_parameters
+    from sweep.plasticity.probe import probe_fit
+
+    _, model = learner(name)
+    obs = np.random.default_rng(4).normal(size=(512, 13)).astype(np.float32)
+    reference = probe_fit(model, obs, steps=300, seed=7, fresh=True)
+    params = model.parameter_arrays()
+    for layer in ("mlp_extractor.policy_net.0", "mlp_extractor.policy_net.2"):
+        params[f"{layer}.weight"] *= 30.0
+    model.write_parameters(params)
+    assert probe_fit(model, obs, steps=300, seed=7, fresh=True) == reference
+    saturated = probe_fit(model, obs, steps=300, seed=7)
+    assert saturated[1] > 1.5 * reference[1], (saturated, reference)
+    drawn = fresh_parameters({k: v.shape for k, v in params.items()}, (model.networks[0],),
+                             np.random.default_rng([7, 1]))
+    model.write_parameters({**params, **{k: v for k, v in drawn.items() if k.startswith(("mlp_extractor.policy",
+                                                                                         "action_net"))}})
+    assert probe_fit(model, obs, steps=300, seed=7) == pytest.approx(reference, rel=1e-6)
+
+
+@pytest.mark.parametrize("name", LEARNERS)
 def test_probe_leaves_weights_optimizer_and_every_rng_alone(name):
     from sweep.plasticity.probe import PlasticityProbe
 
@@ -324,6 +349,7 @@ def test_probe_leaves_weights_optimizer_and_every_rng_alone(name):
     probe.init_callback(model)
     stats = probe.measure()
     assert stats["plasticity/probe_loss"] < stats["plasticity/probe_loss_early"]
+    assert set(stats) == {"plasticity/probe_loss", "plasticity/probe_loss_early", "plasticity/probe_loss_fresh"}
     after = (model.parameter_arrays(), model.optimizer_moments(), model.rng.bit_generator.state,
              np.random.get_state()[1], torch.get_rng_state())
     assert all(np.array_equal(before[0][k], after[0][k]) for k in before[0])

@@ -148,6 +148,7 @@ class Probe:
     batch_size: int = positive_int()
     lr: float = positive()
     observations: int = positive_int()
+    fresh: bool = MISSING
 
 
 @dataclass

@@ -122,10 +122,13 @@ CURVES = (
                "on recent observations, at every wind change and at the end; higher = fits worse.",
           final="final_probe_loss", title="Final probe loss", digits=4),
     Curve("plasticity/probe_loss_early", "Probe loss\n(after N/10 steps)", "probe", logy=True, sparse=True),
+    Curve("plasticity/probe_loss_fresh", "Probe loss,\nfresh network", "probe", logy=True, sparse=True,
+          note="Fresh network: the same fit from a newly drawn network on the same data (the reference).",
+          final="final_probe_loss_fresh", title="Final probe loss, fresh net", digits=4),
     Curve("recom/at_bound"),   # RECOM: 1 where an LR update was clipped to a bound (the summary's share)
 )
 AT_BOUND = "recom/at_bound"
-PROBE = "plasticity/probe_loss"
+PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
 # figure file stem -> its panels, top to bottom (the first panel's metric decides whether the figure is drawn)
 FIGURES: dict[str, list[Curve]] = {}

@@ -12,7 +12,11 @@ the loss of predicting 0),
 
 and the loss is logged after N/10 steps (``plasticity/probe_loss_early``) and after N steps
 (``plasticity/probe_loss``, the mean of the last N/10 steps). A network that has lost plasticity fits worse
-than a fresh one (tests/test_plasticity.py saturates units by hand to check it). The copy is a torch
+than a fresh one (tests/test_plasticity.py saturates units by hand to check it). With ``fresh`` (default) the
+same fit is also run from a network drawn afresh from the init distribution, on the same observations, targets
+and minibatches (``plasticity/probe_loss_fresh``): the reference at the same moment, since the observations
+(and so the difficulty of the targets) change as the policy learns; probe_loss / probe_loss_fresh > 1 is
+plasticity lost relative to a new network. The copy is a torch
 module built from ``learner.parameter_arrays()`` (either learner); the probe draws only from its own
 generator, so the learner's weights, optimizer state and every RNG are untouched (tested).
 """
@@ -23,15 +27,20 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.agents.learner import Learner
-from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, orthogonal
+from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, fresh_parameters, orthogonal
 from sweep.plasticity.batch import recent_rollout
 
 
 def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batch_size: int = 256,
-              lr: float = 1e-3, seed: int = 0, activation: str = "tanh") -> tuple[float, float]:
-    """(loss after steps/10, final loss) of fitting a copy of the policy network to random targets."""
+              lr: float = 1e-3, seed: int = 0, activation: str = "tanh", fresh: bool = False) -> tuple[float, float]:
+    """(loss after steps/10, final loss) of fitting a copy of the policy network to random targets; with
+    ``fresh``, of fitting a network of its shape drawn afresh (weights from a generator of its own, so the
+    targets and minibatches are those of the copy's fit with the same ``seed``)."""
     net = learner.networks[0]
     arrays = learner.parameter_arrays()
+    if fresh:
+        shapes = {k: v.shape for k, v in arrays.items()}
+        arrays = fresh_parameters(shapes, (net,), np.random.default_rng([int(seed), 1]))
     params = {k: torch.tensor(v, dtype=torch.float32, requires_grad=True) for k, v in arrays.items()
               if k.startswith(tuple(net.linears) + tuple(n for n in net.norms if n))}
     act = torch.tanh if activation == "tanh" else torch.relu
@@ -71,8 +80,9 @@ class PlasticityProbe(BaseCallback):
     end of training is called by the run (logged at the final step, like the evaluation)."""
 
     def __init__(self, steps: int = 500, batch_size: int = 256, lr: float = 1e-3, observations: int = 1024,
-                 activation: str = "tanh", seed: int = 0) -> None:
+                 activation: str = "tanh", seed: int = 0, fresh: bool = True) -> None:
         super().__init__()
+        self.fresh = bool(fresh)
         self.steps, self.batch_size, self.lr = int(steps), int(batch_size), float(lr)
         self.n_obs, self.activation, self.seed = int(observations), activation, int(seed)
         self.segment: int | None = None
@@ -89,10 +99,13 @@ class PlasticityProbe(BaseCallback):
 
     def measure(self) -> dict[str, float]:
         obs = recent_rollout(self.model.rollout_buffer, self.n_obs)[0]
-        early, final = probe_fit(self.model, obs, self.steps, self.batch_size, self.lr, self.seed + self.probes,
-                                 self.activation)
+        args = (obs, self.steps, self.batch_size, self.lr, self.seed + self.probes, self.activation)
+        early, final = probe_fit(self.model, *args)
+        out = {"plasticity/probe_loss_early": early, "plasticity/probe_loss": final}
+        if self.fresh:
+            out["plasticity/probe_loss_fresh"] = probe_fit(self.model, *args, fresh=True)[1]
         self.probes += 1
-        return {"plasticity/probe_loss_early": early, "plasticity/probe_loss": final}
+        return out
 
     def _on_rollout_end(self) -> None:
         env = self.training_env

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from sweep import metrics
-from sweep.metrics import CURVES, FINALS, PROBE, REWARD, TABLE3
+from sweep.metrics import CURVES, FINALS, PROBE, PROBE_FRESH, REWARD, TABLE3
 from sweep.report import stats
 from sweep.report.conditions import Conditions, baseline_of
 
@@ -319,13 +319,20 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
                                  "segments.csv", "segments.md", "brief.txt")]
     if (histories["key"] == PROBE).any():
         p_numbers, p_display = at_steps(runs, histories, conds, PROBE)
+        text = ("Plasticity probe (Lyle et al. 2022; plasticity/probe_loss): a copy of the policy network fitted for "
+                "plasticity.probe.steps Adam steps to fixed random targets on the most recent observations, at every "
+                "wind change and at the end of training (the column: the timestep); the final regression loss, mean "
+                "± 95% Student-t CI over seeds. A network that has lost plasticity fits worse: a rising row.\n\n"
+                + markdown(p_display.fillna("–")))
+        if (histories["key"] == PROBE_FRESH).any():
+            f_numbers, f_display = at_steps(runs, histories, conds, PROBE_FRESH)
+            p_numbers = pd.concat([p_numbers.assign(key=PROBE), f_numbers.assign(key=PROBE_FRESH)])
+            text += ("\n\nThe reference (plasticity/probe_loss_fresh): the same fit, at the same moments, from a "
+                     "network drawn afresh from the init distribution on the same observations, targets and "
+                     "minibatches. A trained network above its row has lost plasticity against a new one.\n\n"
+                     + markdown(f_display.fillna("–")))
         p_numbers.to_csv(out / "probe.csv", index=False)
-        (out / "probe.md").write_text(
-            "Plasticity probe (Lyle et al. 2022; plasticity/probe_loss): a copy of the policy network fitted for "
-            "plasticity.probe.steps Adam steps to fixed random targets on the most recent observations, at every "
-            "wind change and at the end of training (the column: the timestep); the final regression loss, mean ± "
-            "95% Student-t CI over seeds. A network that has lost plasticity fits worse: a rising row.\n\n"
-            + markdown(p_display.fillna("–")))
+        (out / "probe.md").write_text(text)
         written += [out / "probe.csv", out / "probe.md"]
     if at:
         a_numbers, a_display = reward_at(runs, histories, conds, list(at), baseline)
