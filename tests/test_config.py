@@ -80,6 +80,12 @@ INVALID = [
     ("eval.policy=worst", "eval.policy='worst': must be final|best|both"),
     ("wind.after_list=loop", "wind.after_list='loop': must be repeat|hold"),
     ("agent.ppo.target_kl=-1", "agent.ppo.target_kl=-1: must be a number > 0 or null (off)"),
+    # no conversion: OmegaConf would read 'no' as false and '0.001' as a number, the run would not
+    ("agent.policy.layer_norm=no", "agent.policy.layer_norm='no': must be true|false"),
+    ("agent.ppo.learning_rate='0.001'", "agent.ppo.learning_rate='0.001': must be a number > 0"),
+    ("agent.label=5", "agent.label=5: must be a string"),
+    ("env.observation_scale=5", "env.observation_scale=5: must be a block with keys velocity, body_rate"),
+    ("agent.learners.sb3._partial_=false", "agent.learners.sb3._partial_=False: must be true"),
     # the JAX learner's own rules
     ("agent.learner=jax env.backend=rotorpy", "env.backend='rotorpy': must be fast with agent.learner=jax"),
     ("agent.learner=jax agent.ppo.n_steps=100", "agent.ppo.batch_size=64: must be a divisor of the rollout size"),
@@ -139,6 +145,28 @@ def test_every_config_key_is_in_the_readme():
     assert not missing, f"config keys missing from the README's configuration reference: {missing}"
 
 
+def test_a_missing_key_is_one_line():
+    with pytest.raises(ConfigError, match=r"^agent\.recom: missing; must be a block with keys _target_, enabled"):
+        validate(compose_cfg(["~agent.recom"]))
+
+
+def test_every_remedy_block_has_its_schema_block():
+    """validate lets an unknown agent block with a _target_ through (the +agent.<name> extension), so a
+    conf/remedy/ block whose schema block was forgotten would never be checked: each must be a field of Agent."""
+    from dataclasses import fields
+
+    from sweep.config import Agent, Remedy
+
+    blocks = {f.name: f.type for f in fields(Agent)}
+    for path in (CONF / "remedy").glob("*.yaml"):
+        cfg = compose_cfg()
+        users = [k for k, v in cfg.agent.items() if hasattr(v, "get") and v.get("_target_") ==
+                 __import__("yaml").safe_load(path.read_text())["_target_"]]
+        assert users and all(u in blocks for u in users), (path.stem, users)
+    assert all(issubclass(__import__("sweep.config", fromlist=[t]).__dict__[t], Remedy)
+               for t in ("WeightDecay", "Recom", "ReDo", "ShrinkPerturb", "CBP"))
+
+
 def test_a_key_outside_the_schema_is_named():
     with pytest.raises(ConfigError, match=r"^env\.zzz: not a config key"):
         validate(compose_cfg(["+env.zzz=1"]))
@@ -151,14 +179,32 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 
     from omegaconf import OmegaConf
 
-    schema = compose_cfg.__globals__["compose"]  # the test's Hydra compose, with the project's conf dir
-    from hydra import initialize_config_dir
+    from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        empty = schema(config_name="sweep_schema")
+        empty = compose(config_name="sweep_schema")
     assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent, "learner") and OmegaConf.is_missing(empty.agent.recom, "gain")
     for node in (empty.agent.learners, empty.env.backends):  # Dict nodes: Hydra's struct flag would refuse new keys
         OmegaConf.set_struct(node, False)
     typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=recom_l2"]), resolve=True))
     assert isinstance(typed.agent.recom.gradient, Enum) and typed.agent.recom.gradient.value == "absolute"
     assert typed.agent.recom.gain == 5e-6 and typed.env.n_envs == 1
+
+
+# The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
+# settings, so any new or renamed config key changes it, and a sweep started before the change is then not
+# resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
+JOB_KEY = "1ca06bdc49c01c98"
+
+
+def test_the_resume_key_changes_only_with_the_settings():
+    from sweep.checkpoint import job_key
+
+    base = ["agent=recom_l2", "train.checkpoint_dir=null"]
+    assert job_key(compose_cfg(base), "sqlite:///x.db") == JOB_KEY, "resume keys changed: see the comment at JOB_KEY"
+    assert job_key(compose_cfg(base + ["resume=never", "train.progress_every_s=5"]), "sqlite:///x.db") == JOB_KEY
+    # the wiring (which class builds a learner / backend) is not a setting; the choice of one is
+    rewired = base + ["agent.learners.sb3._target_=my_lab.MyPPO.from_config"]
+    assert job_key(compose_cfg(rewired), "sqlite:///x.db") == JOB_KEY
+    assert job_key(compose_cfg(base + ["agent.learner=jax"]), "sqlite:///x.db") != JOB_KEY
+    assert job_key(compose_cfg(base), "sqlite:///y.db") != JOB_KEY

@@ -23,15 +23,16 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep.config import settings
 from sweep.status import read_json, update_json
 
 
 def job_key(cfg: DictConfig, uri: str) -> str:
-    """Stable id of a job: its resolved config without ``resume`` and the tracking store."""
-    container = OmegaConf.to_container(cfg, resolve=True)
+    """Stable id of a job: its resolved settings (``config.settings``) without ``resume``, and the tracking store."""
+    container = settings(cfg)
     container.pop("resume", None)
     container.get("train", {}).pop("progress_every_s", None)
     text = json.dumps({"config": container, "uri": uri}, sort_keys=True, default=str)

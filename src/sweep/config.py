@@ -12,14 +12,13 @@ trained or tracked. So ``validate(cfg)`` merges the composed config into the sch
 from __future__ import annotations
 
 import math
-import re
+import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 from enum import Enum
 from typing import Any, Callable, Dict, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
-from omegaconf.errors import ConfigKeyError, ValidationError
 
 
 class ConfigError(ValueError):
@@ -84,8 +83,8 @@ def vector3() -> Any:
                "a non-zero 3-vector [x, y, z]")
 
 
-PARAMS = "a non-empty subset of [policy, value, log_std]"
-NETWORKS = "a non-empty subset of [policy, value]"
+PARAMS = f"a non-empty subset of [{', '.join(ParamGroup.__members__)}]"
+NETWORKS = f"a non-empty subset of [{', '.join(NetworkName.__members__)}]"
 
 
 # ---- the tree (conf/config.yaml top to bottom) --------------------------------------------------------------------
@@ -113,7 +112,7 @@ class Target:
 @dataclass
 class Factory(Target):
     """A class (or its from_config) that the code calls later: conf/learner/, conf/backend/."""
-    _partial_: bool = True
+    _partial_: bool = key(lambda v: v is True, "true (the code calls the class with its arguments later)")
 
 
 @dataclass
@@ -296,7 +295,8 @@ class SweepConfig:
     agent: Agent = field(default_factory=Agent)
     wind: Wind = field(default_factory=Wind)
     seed: int = at_least(0)
-    resume: str = MISSING   # auto | never | a job dir | an MLflow run id: checked by run.job_record
+    resume: Any = key(lambda v: isinstance(v, (str, int)) and not isinstance(v, bool),   # run.job_record resolves it
+                      "auto, never, a job output dir or an MLflow run id")
     env: Env = field(default_factory=Env)
     train: Train = field(default_factory=Train)
     plasticity: Plasticity = field(default_factory=Plasticity)
@@ -306,47 +306,96 @@ class SweepConfig:
 
 ConfigStore.instance().store(name="sweep_schema", node=SweepConfig)
 
+# Which class builds a learner / backend: wiring, not a setting of the run (agent.learner and env.backend, the
+# names, are). Left out of a job's resume key and of its logged MLflow params.
+WIRING = (("agent", "learners"), ("env", "backends"))
+
+
+def settings(cfg: DictConfig) -> dict:
+    """The resolved config as plain containers, without the WIRING blocks."""
+    container = OmegaConf.to_container(cfg, resolve=True)
+    for group, name in WIRING:
+        container.get(group, {}).pop(name, None)
+    return container
+
 
 # ---- validation ------------------------------------------------------------------------------------------------
-def _allowed(schema: type, path: list[str]) -> str:
-    """What the schema allows at ``path``: the field's own text, its choices, or its type."""
-    node, f = schema, None
-    for name in path:
-        f = next((x for x in fields(node) if x.name == name), None)
-        if f is None:
-            return "a key of the schema (sweep.config.SweepConfig)"
-        node = f.type if isinstance(f.type, type) else _resolve_type(node, f)
-    text = f.metadata.get("allowed") if f is not None else ""
-    if text:
-        return text
-    if isinstance(node, type) and issubclass(node, Enum):
-        return "|".join(node.__members__)
-    return {int: "an integer", float: "a number", bool: "true|false", str: "a string"}.get(node, "of its type")
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, globalns=globals())
 
 
-def _resolve_type(owner: type, f) -> Any:
-    import typing
+def _what(typ: Any) -> str:
+    """What a type allows, as the error message says it."""
+    if typing.get_origin(typ) is typing.Union:
+        inner = [a for a in typing.get_args(typ) if a is not type(None)][0]
+        return f"{_what(inner)} or null"
+    if typing.get_origin(typ) is list:
+        return f"a list of {_what(typing.get_args(typ)[0])}s".replace("a lists", "lists")
+    if is_dataclass(typ):
+        return "a block with keys " + ", ".join(f.name for f in fields(typ))
+    if isinstance(typ, type) and issubclass(typ, Enum):
+        return "|".join(typ.__members__)
+    return {int: "an integer", float: "a number", bool: "true|false", str: "a string"}.get(typ, str(typ))
 
-    hints = typing.get_type_hints(owner, globalns=globals())
-    hint = hints[f.name]
-    args = [a for a in typing.get_args(hint) if a is not type(None)]
-    return args[0] if typing.get_origin(hint) is typing.Union and args else hint
+
+def _scalar_ok(value: Any, typ: Any) -> bool:
+    """The value's own Python type fits: no conversion (OmegaConf would read 'no' as false and '5' as 5)."""
+    if typ is Any:
+        return True
+    if isinstance(typ, type) and issubclass(typ, Enum):
+        return isinstance(value, str) and value in typ.__members__
+    if typ is bool:
+        return isinstance(value, bool)
+    if typ is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if typ is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return isinstance(value, typ)
 
 
-def _shown(value: Any) -> Any:
-    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
+def _fail(key: str, value: Any, allowed: str) -> ConfigError:
+    return ConfigError(f"{key}={value!r}: must be {allowed}")
 
 
-def _checks(node: Any, schema_cls: type, prefix: str = ""):
-    """(key, typed value, check, allowed) for every field with a range check, depth first."""
-    for f in fields(schema_cls):
-        value = node[f.name]
-        typ = _resolve_type(schema_cls, f)
-        if is_dataclass(typ):
-            yield from _checks(value, typ, f"{prefix}{f.name}.")
-        elif f.metadata.get("check") is not None:
-            plain = [v.value if isinstance(v, Enum) else v for v in value] if OmegaConf.is_list(value) else value
-            yield f"{prefix}{f.name}", plain, f.metadata["check"], f.metadata["allowed"]
+def _check(value: Any, typ: Any, key: str, meta: Any = None) -> None:
+    """Raise ConfigError at the first value under ``key`` that the schema type ``typ`` (and the field's range
+    check in ``meta``) does not allow, depth first in the schema's order."""
+    allowed = (meta or {}).get("allowed") or _what(typ)
+    if value == "???":
+        raise ConfigError(f"{key}: missing; must be {allowed}")
+    origin = typing.get_origin(typ)
+    if origin is typing.Union:
+        if value is None:
+            return
+        typ = [a for a in typing.get_args(typ) if a is not type(None)][0]
+        origin = typing.get_origin(typ)
+    if is_dataclass(typ):
+        if not isinstance(value, dict):
+            raise _fail(key, value, _what(typ))
+        names, hints = [f.name for f in fields(typ)], _hints(typ)
+        for name in value:
+            if name not in names:
+                raise ConfigError(f"{key}.{name}: not a config key (allowed under {key}: {', '.join(names)})")
+        for f in fields(typ):
+            if f.name not in value:
+                raise ConfigError(f"{key}.{f.name}: missing; must be {f.metadata.get('allowed') or _what(hints[f.name])}")
+            _check(value[f.name], hints[f.name], f"{key}.{f.name}", f.metadata)
+        return
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise _fail(key, value, "a block of named entries")
+        for name, item in value.items():
+            _check(item, typing.get_args(typ)[1], f"{key}.{name}")
+        return
+    if origin is list:
+        item_type = typing.get_args(typ)[0]
+        if not isinstance(value, list) or not all(_scalar_ok(v, item_type) for v in value):
+            raise _fail(key, value, allowed)
+    elif not _scalar_ok(value, typ):
+        raise _fail(key, value, allowed)
+    check = (meta or {}).get("check")
+    if check is not None and not check(value):
+        raise _fail(key, value, allowed)
 
 
 def validate(cfg: DictConfig) -> None:
@@ -355,24 +404,19 @@ def validate(cfg: DictConfig) -> None:
     plain.pop("hydra", None)
     # An agent block with a _target_ that the schema does not list (``+agent.<name>._target_=...``) is an extra
     # callback, built like a remedy (e.g. tests/faults.py); its keys are its class's arguments, checked there.
+    # (Every conf/remedy/ block is a field of Agent: tests/test_config.py checks it.)
     known = {f.name for f in fields(Agent)}
     for name in [k for k, v in plain.get("agent", {}).items() if k not in known and isinstance(v, dict) and "_target_" in v]:
         plain["agent"].pop(name)
-    try:
-        typed = OmegaConf.merge(OmegaConf.structured(SweepConfig), plain)
-        OmegaConf.to_container(typed, throw_on_missing=True)
-    except (ValidationError, ConfigKeyError) as err:
-        full_key = re.sub(r"\[\d+\]$", "", err.full_key or "")
-        value = OmegaConf.select(cfg, full_key, default=None) if full_key else None
-        if isinstance(err, ConfigKeyError) or "not in" in str(err):
-            raise ConfigError(f"{full_key}: not a config key (sweep.config.SweepConfig lists them)") from None
-        if "Missing mandatory value" in str(err):
-            raise ConfigError(f"{full_key}: missing; must be {_allowed(SweepConfig, full_key.split('.'))}") from None
-        raise ConfigError(f"{full_key}={_shown(value)!r}: must be {_allowed(SweepConfig, full_key.split('.'))}") from None
-    for name, value, check, allowed in _checks(typed, SweepConfig):
-        if not check(value):   # the value as the user wrote it (the schema turned ints into floats)
-            raise ConfigError(f"{name}={_shown(OmegaConf.select(cfg, name))!r}: must be {allowed}")
-    _cross_rules(typed)
+    hints = _hints(SweepConfig)
+    for name in plain:
+        if name not in hints:
+            raise ConfigError(f"{name}: not a config key (top level: {', '.join(hints)})")
+    for f in fields(SweepConfig):
+        if f.name not in plain:
+            raise ConfigError(f"{f.name}: missing")
+        _check(plain[f.name], hints[f.name], f.name, f.metadata)
+    _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
 
 
 def _cross_rules(c: DictConfig) -> None:

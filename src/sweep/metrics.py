@@ -83,7 +83,8 @@ class Curve:
 
 
 REWARD = "rollout/ep_rew_mean"
-EVAL_SUCCESS = eval_key("final", "success_rate")
+AT_BOUND = "recom/at_bound"
+PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
 CURVES = (
     Curve(REWARD, "Mean episode reward", "reward", always=True, final="final_reward", title="Final reward",
@@ -109,7 +110,7 @@ CURVES = (
     Curve("plasticity/weight_norm", "Weight norm, policy + value nets", "weight_norm", always=True,
           final="final_weight_norm", title="Final weight norm", digits=1),
     Curve("train/learning_rate", "Learning rate", "learning_rate", logy=True, always=True),
-    Curve(EVAL_SUCCESS, "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
+    Curve(eval_key("final", "success_rate"), "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
     Curve(eval_key("final", "crash_rate"), "Evaluation crashes (%)", "eval_crash", 100.0, ylim=(-3, 103), sparse=True),
     # PPO's own health: how far each update moves a policy whose exploration noise shrinks
     Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True),
@@ -117,18 +118,16 @@ CURVES = (
     Curve("train/clip_fraction", "Clip fraction (%)", "ppo_update", 100.0, percent=True),
     # the plasticity probe (Lyle et al. 2022): a copy of the policy net fitted to random targets at every wind
     # change and at the end; a net that has lost plasticity fits worse (higher loss)
-    Curve("plasticity/probe_loss", "Probe loss\n(after N steps)", "probe", logy=True, sparse=True,
+    Curve(PROBE, "Probe loss\n(after N steps)", "probe", logy=True, sparse=True,
           note="Probe: a copy of the policy net fitted for plasticity.probe.steps Adam steps to fixed random targets "
                "on recent observations, at every wind change and at the end; higher = fits worse.",
           final="final_probe_loss", title="Final probe loss", digits=4),
     Curve("plasticity/probe_loss_early", "Probe loss\n(after N/10 steps)", "probe", logy=True, sparse=True),
-    Curve("plasticity/probe_loss_fresh", "Probe loss,\nfresh network", "probe", logy=True, sparse=True,
+    Curve(PROBE_FRESH, "Probe loss,\nfresh network", "probe", logy=True, sparse=True,
           note="Fresh network: the same fit from a newly drawn network on the same data (the reference).",
           final="final_probe_loss_fresh", title="Final probe loss, fresh net", digits=4),
-    Curve("recom/at_bound"),   # RECOM: 1 where an LR update was clipped to a bound (the summary's share)
+    Curve(AT_BOUND),   # RECOM: 1 where an LR update was clipped to a bound (the summary's share)
 )
-AT_BOUND = "recom/at_bound"
-PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
 # figure file stem -> its panels, top to bottom (the first panel's metric decides whether the figure is drawn)
 FIGURES: dict[str, list[Curve]] = {}

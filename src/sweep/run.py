@@ -26,7 +26,7 @@ from sweep.agents import build_learner, build_remedies
 from sweep import metrics
 from sweep.best_policy import BestPolicies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
-from sweep.config import ConfigError, validate
+from sweep.config import ConfigError, settings, validate
 from sweep.envs.factory import make_env, wind_schedule
 from sweep.evaluate import PeriodicEvaluation, evaluate
 from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
@@ -107,7 +107,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
                   ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
 
     run_id = previous.get("run_id") if previous else None
-    params = flatten(OmegaConf.to_container(cfg, resolve=True))
+    params = flatten(settings(cfg))
     with TrackedRun(cfg.tracking, params, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
         record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))

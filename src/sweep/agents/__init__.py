@@ -14,6 +14,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.schedules import LRSchedule
 
+
 def build_learner(agent: DictConfig, env: VecEnv, seed: int) -> BaseAlgorithm:
     """PPO with ``agent.ppo`` hyperparameters and ``agent.policy`` networks on the learner ``agent.learner``
     names among ``agent.learners`` (conf/learner/*.yaml: the ``_target_`` of its ``from_config``)."""

@@ -62,6 +62,7 @@ from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 from sweep.agents import rollout  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
 from sweep.agents.networks import LAYER_NORM_EPS, Network, actor_critic, policy_class, remedy_rng  # noqa: E402
+from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu}
@@ -89,7 +90,6 @@ def _jax_cpu_client_on_one_thread() -> None:
 
 _jax_cpu_client_on_one_thread()
 
-TORCH_ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 Params = dict[str, jax.Array]
 
 
@@ -187,7 +187,7 @@ class JaxPPO(OnPolicyAlgorithm):
         cls = policy_class(self.layer_norm)
         cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
         return cls(self.observation_space, self.action_space, self.lr_schedule, net_arch={"pi": arch, "vf": arch},
-                   activation_fn=TORCH_ACTIVATIONS[self.activation], optimizer_kwargs={"eps": self.adam_eps})
+                   activation_fn=SB3_ACTIVATIONS[self.activation], optimizer_kwargs={"eps": self.adam_eps})
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
@@ -412,7 +412,7 @@ class JaxPPO(OnPolicyAlgorithm):
                     clip_range=self.clip_range, ent_coef=self.ent_coef, vf_coef=self.vf_coef,
                     max_grad_norm=self.max_grad_norm, target_kl=self.target_kl, device="cpu",
                     policy_kwargs={"net_arch": {"pi": arch, "vf": arch},
-                                   "activation_fn": TORCH_ACTIVATIONS[self.activation],
+                                   "activation_fn": SB3_ACTIVATIONS[self.activation],
                                    "optimizer_kwargs": {"eps": self.adam_eps}})
         model.policy.load_state_dict({k: torch.as_tensor(v) for k, v in self.parameter_arrays().items()})
         model.num_timesteps = self.num_timesteps

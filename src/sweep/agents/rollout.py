@@ -128,18 +128,18 @@ def widest(width, net):
 
 
 @numba.njit(cache=True)
-def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buffer, env):
+def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buffer, kernel):
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
 
     ``obs`` (N, D) is the observation before step t and is overwritten with the one after the last step
     (the terminal one for vehicles whose episode ended: the caller resets them). ``wind`` (n_steps, 3) is
     the wind of every step of the rollout, ``noise`` (n_steps, N, A) the Gaussian draws. ``policy`` is a
-    ``Policy``, ``buffer`` a ``Buffer``, ``env`` the env's ``HoverKernel`` (``sweep.envs.hover``)."""
+    ``Policy``, ``buffer`` a ``Buffer``, ``kernel`` the env's ``HoverKernel`` (``sweep.envs.hover``)."""
     pi, vf, log_std, relu, layer_norm = policy
-    vehicles, physics, outcome = env.vehicles, env.physics, env.outcome
-    t_idx, ep_return, reward_scale = env.t_idx, env.ep_return, env.reward_scale
+    vehicles, physics, outcome = kernel.vehicles, kernel.physics, kernel.outcome
+    t_idx, ep_return, reward_scale = kernel.t_idx, kernel.ep_return, kernel.reward_scale
     rewards, terminated, truncated = outcome.rewards, outcome.terminated, outcome.truncated
-    task = env.task
+    task = kernel.task
     buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs = buffer  # read once: see step_vehicles
     n, n_act = obs.shape[0], noise.shape[2]
     width = widest(widest(obs.shape[1], pi), vf)

@@ -17,7 +17,6 @@ import math
 from dataclasses import dataclass
 
 
-
 @dataclass(frozen=True)
 class LRSchedule:
     kind: str

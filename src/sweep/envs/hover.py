@@ -35,8 +35,6 @@ from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 
-OBSERVATIONS = ("quaternion", "euler")
-TIME_LIMITS = ("truncate", "terminate")
 SAFE_SPEED, SAFE_RATE = 100.0, 100.0  # m/s, rad/s: RotorPy's safety_exit bounds
 
 
@@ -145,10 +143,6 @@ class HoverVecEnv(VecEnv):
         reward_scale: float = 1.0,
         seed: int | None = None,
     ) -> None:
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"env.observation={observation!r}; allowed: {list(OBSERVATIONS)}")
-        if time_limit not in TIME_LIMITS:
-            raise ValueError(f"env.time_limit={time_limit!r}; allowed: {list(TIME_LIMITS)}")
         self.time_limit = time_limit
         scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
         self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])

@@ -27,8 +27,6 @@ class WindSchedule:
 
     def __post_init__(self) -> None:
         self.speeds = [float(s) for s in self.speeds]
-        if self.after_list not in ("repeat", "hold"):
-            raise ValueError(f"after_list={self.after_list!r}; allowed: repeat, hold")
         d = np.asarray(self.direction, dtype=np.float64)
         norm = float(np.linalg.norm(d))
         self._unit = d / norm if norm > 0 else np.zeros(3)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery, chosen_networks
+from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery
 
 
 class ContinualBackprop(Remedy):
@@ -30,7 +30,7 @@ class ContinualBackprop(Remedy):
                  networks=NETWORKS, batch_size: int = 256, reset_adam: bool = False) -> None:
         super().__init__(every_updates=1, batch_size=batch_size)
         self.rate, self.maturity, self.decay = float(replacement_rate), int(maturity), float(decay)
-        self.networks, self.reset_adam = chosen_networks(networks), bool(reset_adam)
+        self.networks, self.reset_adam = tuple(networks), bool(reset_adam)
         self.utility: dict[str, np.ndarray] = {}   # "<network>/<k>" -> per unit
         self.age: dict[str, np.ndarray] = {}
         self.pending: dict[str, float] = {}        # accrued fractional replacements

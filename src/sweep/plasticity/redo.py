@@ -15,7 +15,7 @@ import numpy as np
 
 from sweep.agents.learner import Learner
 from sweep.plasticity.dormant import dormant_mask
-from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery, chosen_networks
+from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery
 
 
 class ReDo(Remedy):
@@ -25,7 +25,7 @@ class ReDo(Remedy):
     def __init__(self, every_updates: int = 100, tau: float = 0.1, networks=NETWORKS, batch_size: int = 1024,
                  reset_adam: bool = True) -> None:
         super().__init__(every_updates, batch_size)
-        self.tau, self.networks, self.reset_adam = float(tau), chosen_networks(networks), bool(reset_adam)
+        self.tau, self.networks, self.reset_adam = float(tau), tuple(networks), bool(reset_adam)
 
     def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
         activations = learner.hidden_activations(observations)

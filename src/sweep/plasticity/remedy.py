@@ -24,11 +24,6 @@ from sweep.plasticity.batch import recent_rollout
 NETWORKS = ("policy", "value")
 
 
-def chosen_networks(networks) -> tuple[str, ...]:
-    """The networks a unit-level remedy acts on (a non-empty subset of policy, value: sweep.config checks it)."""
-    return tuple(networks)
-
-
 class UnitSurgery:
     """Collects unit re-initialisations on a copy of the parameters; ``commit`` writes them in one go."""
 

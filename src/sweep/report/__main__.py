@@ -22,6 +22,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
           baseline: str | None = None, at: list[int] = ()) -> Path:
     from mlflow.exceptions import MlflowException
 
+    from sweep import metrics
     from sweep.report import conditions, figures, load, style, tables
 
     uri = load.tracking_uri()
@@ -46,7 +47,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         print(f"sweep.report: missing: {missing}")
 
     histories = load.load_histories(client, runs)
-    for key in load.CURVE_KEYS:
+    for key in metrics.CURVE_KEYS:
         lacking = runs.loc[~runs["run_id"].isin(histories.loc[histories["key"] == key, "run_id"]), "run_name"]
         if len(lacking):
             print(f"sweep.report: missing: {key} history in {', '.join(lacking)}")

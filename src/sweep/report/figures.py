@@ -171,7 +171,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
     return seeds
 
 
-# How the flight figures name the policy they show (load.POLICIES keys).
+# How the flight figures name the policy they show (metrics.POLICIES keys).
 POLICY_NAMES = {"final": "final policy", "best": "best policy (by training reward)"}
 
 

@@ -1,7 +1,7 @@
 """Read one experiment of the MLflow store back into pandas (the only module that reads the store).
 
 * ``runs``: one row per FINISHED run: run_id, agent, its legend label, wind, seed, sweep, the wind schedule and
-  eval params, the end-of-run evaluations (EVAL_KEYS: the final policy's ``eval/*``, the best kept policies'
+  eval params, the end-of-run evaluations (metrics.EVAL_KEYS: the final policy's ``eval/*``, the best kept policies'
   ``eval_best/*`` and ``eval_best_eval/*``; NaN where the run did not evaluate that policy), the names of its
   metrics (``logged``) and one column per ``--by`` param.
 * ``histories``: long table (run_id, key, step, value) of the metric histories the report plots.
@@ -26,8 +26,6 @@ from mlflow.tracking import MlflowClient  # noqa: E402
 from sweep import metrics  # noqa: E402
 
 # What a run logged and the report reads: sweep.metrics (one registry of keys, labels, figures and tables).
-POLICIES, SOURCE_FIELDS, EVAL_KEYS = metrics.POLICIES, metrics.SOURCE_FIELDS, metrics.EVAL_KEYS
-CURVE_KEYS, OPTIONAL_KEYS = metrics.CURVE_KEYS, metrics.OPTIONAL_KEYS  # every run logs the first; some the second
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
@@ -152,7 +150,7 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
-        row.update({key: logged.get(key, np.nan) for key in EVAL_KEYS})
+        row.update({key: logged.get(key, np.nan) for key in metrics.EVAL_KEYS})
         if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's
             row.update({metrics.eval_key("final", f.name): np.nan for f in metrics.EVAL_FIELDS})
         row.update({key: by_value(params, key) for key in by})
@@ -175,7 +173,8 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
     return df.reset_index(drop=True), notes
 
 
-def load_histories(client: MlflowClient, runs: pd.DataFrame, keys=CURVE_KEYS + OPTIONAL_KEYS) -> pd.DataFrame:
+def load_histories(client: MlflowClient, runs: pd.DataFrame,
+                   keys=metrics.CURVE_KEYS + metrics.OPTIONAL_KEYS) -> pd.DataFrame:
     """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value)."""
     frames = []
     for run_id, logged in zip(runs["run_id"], runs["logged"]):
@@ -191,9 +190,9 @@ def load_histories(client: MlflowClient, runs: pd.DataFrame, keys=CURVE_KEYS + O
 
 
 def trajectories_name(policy: str = "final") -> str:
-    """The artifact holding the evaluation flights of ``policy`` (a POLICIES key): eval_trajectories.npz,
+    """The artifact holding the evaluation flights of ``policy`` (a metrics.POLICIES key): eval_trajectories.npz,
     eval_best_trajectories.npz, eval_best_eval_trajectories.npz."""
-    return f"eval{POLICIES[policy].removeprefix('eval')}_trajectories.npz"
+    return f"eval{metrics.POLICIES[policy].removeprefix('eval')}_trajectories.npz"
 
 
 def load_trajectories(client: MlflowClient, run_id: str, policy: str = "final") -> dict[str, np.ndarray] | None:

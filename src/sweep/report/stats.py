@@ -90,8 +90,6 @@ def collapse(values: np.ndarray) -> float:
     return float((s.cummax() - s).max()) if len(s) else np.nan
 
 
-
-
 def per_run_curve_stats(histories: pd.DataFrame) -> pd.DataFrame:
     """One row per run: final value of each FINALS curve (NaN for a curve the run did not log), collapse of the
     reward curve, and ``at_bound``: the share of RECOM's LR updates clipped to a bound (mean of the recom/at_bound
