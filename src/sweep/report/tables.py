@@ -216,7 +216,7 @@ def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key
         for step, s in g.groupby("step"):
             mean, half, n = stats.mean_t_ci(s["value"])
             numbers.append({**_identity(conds, cond, wind), "step": int(step), "mean": mean, "ci95": half, "n_seeds": n})
-            shown[_steps(int(step))] = f"{mean:.3g}" + (f" ± {half:.2g}" if np.isfinite(half) else "")
+            shown[_round_steps(step)] = f"{mean:.3g}" + (f" ± {half:.2g}" if np.isfinite(half) else "")
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
