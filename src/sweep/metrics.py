@@ -113,8 +113,10 @@ CURVES = (
     Curve(eval_key("final", "success_rate"), "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
     Curve(eval_key("final", "crash_rate"), "Evaluation crashes (%)", "eval_crash", 100.0, ylim=(-3, 103), sparse=True),
     # PPO's own health: how far each update moves a policy whose exploration noise shrinks
-    Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True),
-    Curve("train/approx_kl", "Approx. KL\nper update", "ppo_update", logy=True),
+    Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True,
+          final="final_policy_std", title="Final policy std", digits=3),
+    Curve("train/approx_kl", "Approx. KL\nper update", "ppo_update", logy=True,
+          final="final_approx_kl", title="Final approx KL", digits=3),
     Curve("train/clip_fraction", "Clip fraction (%)", "ppo_update", 100.0, percent=True),
     # the plasticity probe (Lyle et al. 2022): a copy of the policy net fitted to random targets at every wind
     # change and at the end; a net that has lost plasticity fits worse (higher loss)
