@@ -309,6 +309,8 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         steps = [len({m.step for m in client.get_metric_history(r.info.run_id, key)}) for r in runs]
         if max(steps) >= (2 if stem in SPARSE else 1):
             stems.add(f"{stem}_paper")
+    if "eval_success_paper" in stems:  # evaluations during training: the performance profile of the late ones
+        stems.add("performance_profile_paper")
     return stems
 
 
@@ -718,7 +720,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
-                                 | {"eval_flights_3d", "eval_position_axes"})
+                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper"})
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -778,7 +780,8 @@ def test_many_agents_keep_their_labels_and_distinct_looks(tmp_path, monkeypatch)
     monkeypatch.setattr(figures, "save", spy)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many")
     assert code == 0, stdout + stderr
-    curves = {"reward_paper", "episode_length_paper", "dormant_paper", "eval_success_paper", "eval_crash_paper"}
+    curves = {"reward_paper", "episode_length_paper", "dormant_paper", "eval_success_paper", "eval_crash_paper",
+              "performance_profile_paper"}
     assert set(drawn) == curves
     labels = sorted(MANY.values(), key=str.casefold)  # paper agents first, then by label: here by label only
     look = {}
@@ -863,7 +866,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
-                                 | {"eval_flights_3d", "eval_position_axes"})
+                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper"})
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -977,3 +980,36 @@ def test_reward_at_steps_gives_the_iqm_and_its_difference_to_the_baseline(tmp_pa
     assert np.isnan(got.loc[("ppo", 1000), "delta_iqm"])               # PPO is the baseline itself
     code, _, _ = run_report(uri, tmp_path / "plain", "--experiment", HAND)
     assert code == 0 and not (tmp_path / "plain" / "reward_at.md").exists()
+
+
+def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path):
+    """Evaluations every 100 steps to 1000, 'late' = steps > 500 (five of them). PPO seed 0 hovers in 2 of 5 late
+    evaluations, seed 1 never; L2 seed 0 at 100%, seed 1 at 50% (counts: >= 50%). Leaderboard: L2 first at
+    100 ± 0%, PPO 20% (per seed 40, 0); P(L2 > PPO) = 1 (every pair). Profile of the late mean success:
+    L2's runs (1.0, 0.5) -> 100% above τ = 0.4, 50% above 0.5 (strictly) and 0.99, 0% above 1."""
+    from sweep.report import stats as rstats
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("lb")
+    late = {("ppo", 0): [0.6, 0.6, 0.0, 0.0, 0.0], ("ppo", 1): [0.0] * 5, ("l2", 0): [1.0] * 5, ("l2", 1): [0.5] * 5}
+    for (agent, seed), values in late.items():
+        run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                 "run_name": f"{agent}-s{seed}"}).info.run_id
+        evals = [0.1 * seed] * 5 + values
+        metrics = [Metric("rollout/ep_rew_mean", -100.0 + s / 100, 0, int(s)) for s in range(0, 1001, 100)]
+        metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
+        client.log_batch(run_id, metrics=metrics, params=[Param("agent.l2.enabled", str(agent == "l2"))])
+        client.set_terminated(run_id)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "lb")
+    assert code == 0, stdout + stderr
+    board = pd.read_csv(tmp_path / "out" / "leaderboard.csv")
+    assert list(board["agent"]) == ["l2", "ppo"]
+    assert board.loc[0, "keeps_hovering"] == 1.0 and board.loc[0, "keeps_hovering_ci95"] == 0.0
+    assert board.loc[1, "keeps_hovering"] == pytest.approx(0.2)
+    assert board.loc[0, "p_improve_over_ppo"] == 1.0 and np.isnan(board.loc[1, "p_improve_over_ppo"])
+    shown = md_table(tmp_path / "out" / "leaderboard.md").set_index("Agent")
+    assert shown.loc["PPO", "per seed"] == "40, 0" and shown.loc["L2 + PPO", "Keeps hovering (%)"] == "100 ± 0"
+    assert (tmp_path / "out" / "performance_profile_paper.png").exists()
+    point, lo, hi = rstats.performance_profile([1.0, 0.5], np.array([0.4, 0.5, 0.99, 1.0]))
+    assert list(point) == [1.0, 0.5, 0.5, 0.0] and lo[0] == hi[0] == 1.0 and (lo[1], hi[1]) == (0.0, 1.0)

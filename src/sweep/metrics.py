@@ -83,6 +83,7 @@ class Curve:
 
 
 REWARD = "rollout/ep_rew_mean"
+EVAL_SUCCESS = eval_key("final", "success_rate")   # also logged during training (eval.every_timesteps)
 AT_BOUND = "recom/at_bound"
 PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
@@ -110,7 +111,7 @@ CURVES = (
     Curve("plasticity/weight_norm", "Weight norm, policy + value nets", "weight_norm", always=True,
           final="final_weight_norm", title="Final weight norm", digits=1),
     Curve("train/learning_rate", "Learning rate", "learning_rate", logy=True, always=True),
-    Curve(eval_key("final", "success_rate"), "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
+    Curve(EVAL_SUCCESS, "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
     Curve(eval_key("final", "crash_rate"), "Evaluation crashes (%)", "eval_crash", 100.0, ylim=(-3, 103), sparse=True),
     # PPO's own health: how far each update moves a policy whose exploration noise shrinks
     Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True,

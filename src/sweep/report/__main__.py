@@ -23,7 +23,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
-    from sweep.report import conditions, figures, load, style, tables
+    from sweep.report import conditions, figures, load, stats, style, tables
 
     uri = load.tracking_uri()
     try:
@@ -56,6 +56,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     for wind in sorted(runs["wind"].unique()):
         for stem in figures.CURVES:
             written += figures.curve_figure(runs, histories, wind, stem, conds, out_dir)
+
+    late = stats.late_evaluations(histories)
+    for wind in sorted(runs["wind"].unique()):
+        written += figures.performance_profile(runs, late, wind, conds, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
     if policy != "final":

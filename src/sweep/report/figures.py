@@ -142,6 +142,39 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
     return save(fig, out, f"{stem}_{wind}")
 
 
+def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds, out: Path) -> list[Path]:
+    """Figure performance_profile_<wind> (rliable's performance profile): per condition, the share of its runs whose
+    mean evaluation success in the second half of training (stats.late_evaluations) exceeds each level, with
+    a 95% bootstrap band over runs; written when runs of the wind evaluated during training."""
+    sub = runs[runs["wind"] == wind].merge(late, on="run_id")
+    if sub.empty:
+        return []
+    taus = np.linspace(0.0, 1.0, 101)
+    fig, ax = plt.subplots(figsize=(style.COLUMN_WIDTH, 2.3))
+    n = {}
+    for cond in [c for c in conds.order if c in set(sub["condition"])]:
+        scores = sub.loc[sub["condition"] == cond, "late_success"]
+        n[cond] = len(scores)
+        point, lo, hi = stats.performance_profile(scores, taus)
+        ax.plot(100 * taus, 100 * point, color=conds.color(cond), linestyle=conds.dash(cond), drawstyle="steps-post",
+                label=cond)
+        if np.isfinite(lo).any():
+            ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=0.15, step="post", lw=0)
+    ax.set_xlabel("Success level τ (%)")
+    ax.set_ylabel("Runs whose mean late\nsuccess exceeds τ (%)")
+    ax.set_xlim(0, 100)
+    ax.set_ylim(-3, 103)
+    runs_text = f"{max(n.values())} runs each" if len(set(n.values())) == 1 else "runs: " + ", ".join(map(str, n.values()))
+    title = f"late = second half of training; {runs_text}; band: 95% bootstrap CI"
+    for ncol in (3, 2, 1):  # as many columns as fit in the figure's width
+        legend = ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=ncol, frameon=False,
+                           handlelength=2.5, columnspacing=1.0, title=textwrap.fill(title, 60))
+        box = legend.get_window_extent(fig.canvas.get_renderer())
+        if box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1:
+            break
+    return save(fig, out, f"performance_profile_{wind}")
+
+
 def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> dict[str, int]:
     """Draw one Curve for each condition of ``sub``; returns condition -> seeds drawn."""
     grid = np.unique(hist["step"].to_numpy(dtype=float)) if curve.sparse else stats.common_grid(hist)

@@ -23,7 +23,7 @@ import pandas as pd
 from rliable import metrics
 from scipy import stats
 
-from sweep.metrics import AT_BOUND, FINALS, REWARD  # FINALS: per-run column -> the curve whose final value it holds
+from sweep.metrics import AT_BOUND, EVAL_SUCCESS, FINALS, REWARD  # FINALS: per-run column -> the curve whose final value it holds
 
 RESAMPLES = 2000
 FINAL_FRACTION = 0.1  # "final" value of a curve: mean over the last 10% of the run's timesteps
@@ -186,3 +186,36 @@ def poi_ci(scores_x, scores_y) -> tuple[float, float, float]:
     ci = _bootstrap((x, y), _rowwise(metrics.probability_of_improvement), vectorized=True,
                     paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)
+
+
+HOVER = 0.5  # an evaluation "hovers" at >= 50% success (the leaderboard's primary measure)
+
+
+def late_evaluations(histories: pd.DataFrame) -> pd.DataFrame:
+    """Per run with evaluations during training (eval/success_rate at >= 2 steps): ``keeps_hovering``, the share
+    of its evaluations in the second half of training (steps > half its last step; the end-of-run evaluation
+    included) at >= HOVER success, and ``late_success``, their mean success."""
+    ev = histories[histories["key"] == EVAL_SUCCESS]
+    rows = []
+    for run_id, h in ev.groupby("run_id"):
+        if h["step"].nunique() < 2:
+            continue
+        late = h.loc[h["step"] > h["step"].max() / 2, "value"].to_numpy(dtype=float)
+        rows.append({"run_id": run_id, "keeps_hovering": float(np.mean(late >= HOVER)),
+                     "late_success": float(np.mean(late)), "late_evaluations": len(late)})
+    return pd.DataFrame(rows, columns=["run_id", "keeps_hovering", "late_success", "late_evaluations"])
+
+
+def performance_profile(scores, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rliable's performance profile of per-run ``scores``: the share of runs with score > tau for each tau, and
+    its 95% percentile-bootstrap band over runs (rliable's ``create_performance_profile`` with one task; its
+    ``library`` module cannot be imported here, see the module docstring)."""
+    x = np.asarray(scores, dtype=float)
+    x = x[np.isfinite(x)]
+    point = (x[:, None] > taus[None, :]).mean(axis=0)
+    if len(x) < 2:
+        return point, np.full_like(point, np.nan), np.full_like(point, np.nan)
+    rng = np.random.default_rng(RNG_SEED)
+    resampled = x[rng.integers(0, len(x), (RESAMPLES, len(x)))]
+    curves = (resampled[:, :, None] > taus[None, None, :]).mean(axis=1)
+    return point, np.percentile(curves, 2.5, axis=0), np.percentile(curves, 97.5, axis=0)

@@ -221,6 +221,49 @@ def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
+def _per_seed(g: pd.DataFrame, column: str, scale: float = 100.0) -> str:
+    return ", ".join("–" if not np.isfinite(v) else f"{scale * v:.0f}" for v in g.sort_values("seed")[column])
+
+
+def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
+                conds: Conditions) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per condition x wind, sorted by the primary measure ``keeps_hovering`` (the share of evaluations in the
+    second half of training at >= 50% success, stats.late_evaluations; ties by IQM final reward): that share
+    (mean ± t CI over seeds, and per seed), P(> PPO) on it [95% CI], the IQM final reward [95% CI], the final
+    and the best policy's end-of-run success (mean, per seed) and the final readings of the summary."""
+    df = runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        dw = df[df["wind"] == wind]
+        present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
+        ppo = baseline_of(present, cond, "agent", "ppo") if "ppo" in set(present["agent"]) else None
+        keep, half, n = stats.mean_t_ci(g["keeps_hovering"])
+        poi = (stats.poi_ci(g["keeps_hovering"], dw.loc[dw["condition"] == ppo, "keeps_hovering"])
+               if ppo is not None else (np.nan,) * 3)
+        iqm = stats.iqm_ci(g["final_reward"])
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g), "keeps_hovering": keep, "keeps_hovering_ci95": half,
+               "late_success": g["late_success"].mean(), "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1],
+               "p_improve_ci_high": poi[2], "iqm_final_reward": iqm[0], "iqm_ci_low": iqm[1], "iqm_ci_high": iqm[2],
+               **{f"success_{p}": g[_key(p, "success_rate")].mean() for p in SHOWN},
+               **{column: g[column].mean() for column in FINALS if column != "final_reward"}}
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
+                 "Keeps hovering (%)": _pm(100 * keep, 100 * half, 0), "per seed": _per_seed(g, "keeps_hovering"),
+                 "P(> PPO) [95% CI]": _interval(*poi, 2),
+                 "IQM final reward [95% CI]": _interval(*iqm, 0),
+                 **{f"Success {p} (%)": f"{_fixed(100 * num[f'success_{p}'], 0)} ({_per_seed(g, _key(p, 'success_rate'))})"
+                    for p in SHOWN},
+                 **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in CURVES
+                    if c.final and c.final != "final_reward"}}
+        numbers.append(num)
+        display.append(shown)
+    numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
+    if len(numbers):
+        order = numbers.sort_values(["wind", "keeps_hovering", "iqm_final_reward"], ascending=[True, False, False],
+                                    na_position="last").index
+        numbers, display = numbers.loc[order], display.loc[order]
+    return numbers.reset_index(drop=True), display.reset_index(drop=True)
+
+
 def reward_at(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, steps: list[int],
               baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The training reward at given timesteps: per run the last ``rollout/ep_rew_mean`` logged at or before each
@@ -334,6 +377,19 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         p_numbers.to_csv(out / "probe.csv", index=False)
         (out / "probe.md").write_text(text)
         written += [out / "probe.csv", out / "probe.md"]
+    late = stats.late_evaluations(histories)
+    if len(late):
+        l_numbers, l_display = leaderboard(runs, per_run, late, conds)
+        l_numbers.to_csv(out / "leaderboard.csv", index=False)
+        (out / "leaderboard.md").write_text(
+            "Leaderboard, sorted by the primary measure: keeps hovering = the share of a run's evaluations in the "
+            f"second half of training (in-training ones and the final one) at >= {stats.HOVER:.0%} success, mean ± "
+            "95% Student-t CI over seeds (per seed in the next column); P(> PPO) = rliable's probability that a run "
+            "of the agent keeps hovering more than a PPO run in the same wind, 95% bootstrap CI; IQM final reward "
+            f"(mean over the last {stats.FINAL_FRACTION:.0%} of training) with its 95% stratified-bootstrap CI; "
+            f"success of the final and of the best policy at the end of the run: {policies}; then the summary's "
+            "final readings (mean over seeds).\n\n" + markdown(l_display))
+        written += [out / "leaderboard.csv", out / "leaderboard.md"]
     if at:
         a_numbers, a_display = reward_at(runs, histories, conds, list(at), baseline)
         a_numbers.to_csv(out / "reward_at.csv", index=False)
