@@ -330,7 +330,7 @@ def _what(typ: Any) -> str:
         inner = [a for a in typing.get_args(typ) if a is not type(None)][0]
         return f"{_what(inner)} or null"
     if typing.get_origin(typ) is list:
-        return f"a list of {_what(typing.get_args(typ)[0])}s".replace("a lists", "lists")
+        return f"a list whose items are each {_what(typing.get_args(typ)[0])}"
     if is_dataclass(typ):
         return "a block with keys " + ", ".join(f.name for f in fields(typ))
     if isinstance(typ, type) and issubclass(typ, Enum):

@@ -305,7 +305,10 @@ def eval_wind(runs: pd.DataFrame) -> str:
 
 
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
-                 baseline: tuple[str, str] | None = None, at: list[int] = ()) -> list[Path]:
+                 baseline: tuple[str, str] | None = None, at: list[int] = (),
+                 late: pd.DataFrame | None = None) -> list[Path]:
+    """Every table of the report; ``late`` is stats.late_evaluations(histories), computed by the caller once for
+    the leaderboard and the performance profile (computed here when not given)."""
     per_run = stats.per_run_curve_stats(histories)
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
@@ -377,7 +380,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         p_numbers.to_csv(out / "probe.csv", index=False)
         (out / "probe.md").write_text(text)
         written += [out / "probe.csv", out / "probe.md"]
-    late = stats.late_evaluations(histories)
+    late = stats.late_evaluations(histories) if late is None else late
     if len(late):
         l_numbers, l_display = leaderboard(runs, per_run, late, conds)
         l_numbers.to_csv(out / "leaderboard.csv", index=False)
