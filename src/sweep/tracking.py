@@ -7,6 +7,8 @@
 * ``MlflowWriter`` is an SB3 ``KVWriter``: logger dumps are written in ``log_batch``es (every
   ``tracking.flush_every_s`` seconds) with step = environment timesteps and SB3's own metric names
   (``rollout/ep_rew_mean``, ``train/loss``, ...).
+* ``read_finished_runs`` / ``write_finished_run``: a finished run as a plain ``RunRecord`` and back, for the
+  study archives of ``sweep.archive`` (a long study carried from one machine's store to another's).
 """
 from __future__ import annotations
 
@@ -15,7 +17,9 @@ import logging
 import math
 import numbers
 import os
+import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +30,7 @@ from stable_baselines3.common.logger import KVWriter
 
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
 os.environ.setdefault("MLFLOW_ENABLE_ASYNC_TRACE_LOGGING", "false")
+os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 import mlflow  # noqa: E402
 from mlflow.entities import Metric, Param, RunTag  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
@@ -164,6 +169,93 @@ def last_logged_step(run: TrackedRun) -> int:
     """Largest step of the run's SB3 dumps so far (-1 if none): a resumed run logs only later steps."""
     history = run.client.get_metric_history(run.run_id, "time/total_timesteps")
     return max((m.step for m in history), default=-1)
+
+
+@dataclass
+class RunRecord:
+    """One finished MLflow run as plain data: what ``sweep.report`` reads of it, and its small artifacts."""
+    run_id: str
+    experiment: str
+    start_time: int  # ms since the epoch, as MLflow keeps it
+    end_time: int
+    params: dict[str, str]
+    tags: dict[str, str]
+    metrics: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)  # key: steps, values, ms
+    artifacts: dict[str, bytes] = field(default_factory=dict)  # artifact path: content
+
+
+ARCHIVED_FROM = "archived_from"  # tag of an imported run: the run id it was exported from
+
+
+def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),
+                       artifacts=lambda path: True) -> list[RunRecord]:
+    """The FINISHED runs of ``experiment`` (oldest first, run ids in ``skip`` left out), with every metric's
+    history and the artifacts whose path ``artifacts(path)`` accepts."""
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise ValueError(f"no experiment {experiment!r} in {uri}; it has: {', '.join(experiment_names(uri)) or 'none'}")
+    runs = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'", max_results=50000,
+                              order_by=["attributes.start_time ASC"])
+    out = []
+    for run in runs:
+        if run.info.run_id in skip:
+            continue
+        record = RunRecord(run.info.run_id, experiment, run.info.start_time, run.info.end_time,
+                           dict(run.data.params), dict(run.data.tags))
+        for key in run.data.metrics:
+            hist = sorted(client.get_metric_history(run.info.run_id, key), key=lambda m: (m.step, m.timestamp))
+            record.metrics[key] = (np.array([m.step for m in hist], dtype=np.int64),
+                                   np.array([m.value for m in hist], dtype=np.float64),
+                                   np.array([m.timestamp for m in hist], dtype=np.int64))
+        with tempfile.TemporaryDirectory() as tmp:
+            for path in _artifact_files(client, run.info.run_id):
+                if artifacts(path):
+                    record.artifacts[path] = Path(client.download_artifacts(run.info.run_id, path, tmp)).read_bytes()
+        out.append(record)
+    return out
+
+
+def _artifact_files(client: MlflowClient, run_id: str, path: str | None = None) -> list[str]:
+    files = []
+    for item in client.list_artifacts(run_id, path):
+        files += _artifact_files(client, run_id, item.path) if item.is_dir else [item.path]
+    return files
+
+
+def archived_run_ids(uri: str, experiment: str) -> dict[str, str]:
+    """{exported run id: run id here} of the runs of ``experiment`` that ``write_finished_run`` created."""
+    client = MlflowClient(tracking_uri=uri)
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        return {}
+    runs = client.search_runs([exp.experiment_id], max_results=50000)
+    return {r.data.tags[ARCHIVED_FROM]: r.info.run_id for r in runs if ARCHIVED_FROM in r.data.tags}
+
+
+def write_finished_run(uri: str, record: RunRecord, experiment: str | None = None) -> str:
+    """Create ``record`` as a FINISHED run of ``experiment`` (default: its own) in the store at ``uri``, with its
+    start and end times, params, tags (plus ``archived_from``), metric histories and artifacts; its new run id."""
+    client = MlflowClient(tracking_uri=uri)
+    exp_id = ensure_store(uri, experiment or record.experiment)
+    tags = {**record.tags, ARCHIVED_FROM: record.run_id}
+    run_id = client.create_run(exp_id, start_time=record.start_time, tags=tags,
+                               run_name=tags.get("mlflow.runName") or tags.get("run_name")).info.run_id
+    params = [Param(k, v) for k, v in record.params.items()]
+    for i in range(0, len(params), 100):
+        client.log_batch(run_id, params=params[i:i + 100])
+    items = [Metric(key, float(v), int(t), int(s)) for key, (steps, values, times) in record.metrics.items()
+             for s, v, t in zip(steps, values, times)]
+    for i in range(0, len(items), BATCH_LIMIT):
+        client.log_batch(run_id, metrics=items[i:i + BATCH_LIMIT])
+    with tempfile.TemporaryDirectory() as tmp:
+        for path, content in record.artifacts.items():
+            local = Path(tmp) / path
+            local.parent.mkdir(parents=True, exist_ok=True)
+            local.write_bytes(content)
+            client.log_artifact(run_id, str(local), str(Path(path).parent) if Path(path).parent != Path(".") else None)
+    client.set_terminated(run_id, status="FINISHED", end_time=record.end_time)
+    return run_id
 
 
 class MlflowWriter(KVWriter):
