@@ -994,13 +994,13 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
     exp_id = client.create_experiment("lb")
     late = {("ppo", 0): [0.6, 0.6, 0.0, 0.0, 0.0], ("ppo", 1): [0.0] * 5, ("l2", 0): [1.0] * 5, ("l2", 1): [0.5] * 5}
     for (agent, seed), values in late.items():
-        run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
-                                                 "run_name": f"{agent}-s{seed}"}).info.run_id
+        run_id = client.create_run(exp_id, start_time=1_000_000, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                                        "run_name": f"{agent}-s{seed}"}).info.run_id
         evals = [0.1 * seed] * 5 + values
         metrics = [Metric("rollout/ep_rew_mean", -100.0 + s / 100, 0, int(s)) for s in range(0, 1001, 100)]
         metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
         client.log_batch(run_id, metrics=metrics, params=[Param("agent.l2.enabled", str(agent == "l2"))])
-        client.set_terminated(run_id)
+        client.set_terminated(run_id, end_time=1_000_000 + 60_000 * (seed + 1))  # runs of 1 and 2 minutes
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "lb")
     assert code == 0, stdout + stderr
     board = pd.read_csv(tmp_path / "out" / "leaderboard.csv")
@@ -1010,6 +1010,26 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
     assert board.loc[0, "p_improve_over_ppo"] == 1.0 and np.isnan(board.loc[1, "p_improve_over_ppo"])
     shown = md_table(tmp_path / "out" / "leaderboard.md").set_index("Agent")
     assert shown.loc["PPO", "per seed"] == "40, 0" and shown.loc["L2 + PPO", "Keeps hovering (%)"] == "100 ± 0"
+    assert list(board["wall_minutes"]) == [1.5, 1.5] and shown.loc["PPO", "Wall time per run (min)"] == "1.5"
     assert (tmp_path / "out" / "performance_profile_paper.png").exists()
     point, lo, hi = rstats.performance_profile([1.0, 0.5], np.array([0.4, 0.5, 0.99, 1.0]))
     assert list(point) == [1.0, 0.5, 0.5, 0.0] and lo[0] == hi[0] == 1.0 and (lo[1], hi[1]) == (0.0, 1.0)
+
+
+def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):
+    """--agents l2: every table holds L2 only; --agents l2,nope: one error line naming what the experiment has."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("pick")
+    for agent, seed in [("ppo", 0), ("ppo", 1), ("l2", 0), ("l2", 1)]:
+        run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                 "run_name": f"{agent}-s{seed}"}).info.run_id
+        client.log_batch(run_id, metrics=[Metric("rollout/ep_rew_mean", -100.0 + s / 100, 0, s) for s in (0, 500, 1000)])
+        client.set_terminated(run_id)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "pick", "--agents", "l2")
+    assert code == 0, stdout + stderr
+    assert list(pd.read_csv(tmp_path / "out" / "summary.csv")["agent"]) == ["l2"]
+    assert "missing: agent=" not in stdout  # the agents left out on purpose are not reported missing
+    code, _, stderr = run_report(uri, tmp_path / "bad", "--experiment", "pick", "--agents", "l2,nope")
+    lines = stderr.strip().splitlines()
+    assert code == 1 and len(lines) == 1 and "--agents nope: no finished runs" in lines[0] and "l2, ppo" in lines[0]

@@ -19,7 +19,7 @@ import numpy as np
 
 
 def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
-          baseline: str | None = None, at: list[int] = ()) -> Path:
+          baseline: str | None = None, at: list[int] = (), agents: list[str] = ()) -> Path:
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
@@ -37,13 +37,19 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     if runs.empty:
         where = f" of sweep {sweep!r}" if sweep else ""
         raise load.ReportError(f"experiment {exp_name!r}{where} has no finished runs in {uri}")
+    if agents:
+        unknown = sorted(set(agents) - set(runs["agent"]))
+        if unknown:
+            raise load.ReportError(f"--agents {','.join(unknown)}: no finished runs of experiment {exp_name!r}; it has "
+                                   f"{', '.join(sorted(set(runs['agent'])))}")
+        runs = runs[runs["agent"].isin(agents)].reset_index(drop=True)
     runs, conds = conditions.build(runs, list(by))
     base = conditions.parse_baseline(baseline, conds) if baseline is not None else None
 
     out_dir = Path(out) if out else Path("reports") / exp_name
     out_dir.mkdir(parents=True, exist_ok=True)
     print(f"sweep.report: experiment {exp_name!r}: {len(runs)} finished runs from {uri}")
-    for missing in missing_conditions(runs):
+    for missing in ([] if agents else missing_conditions(runs)):
         print(f"sweep.report: missing: {missing}")
 
     histories = load.load_histories(client, runs)
@@ -100,6 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--experiment", help="MLflow experiment (default: the one whose latest run started last)")
     parser.add_argument("--sweep", help="only runs of this sweep: its directory, or a substring of the 'sweep' tag")
     parser.add_argument("--out", help="output folder (default: reports/<experiment>/)")
+    parser.add_argument("--agents", metavar="NAME[,NAME...]", type=lambda s: [a for a in s.split(",") if a], default=[],
+                        help="only these agents' runs (conf/agent names), e.g. ppo,recom_l2_relative for curves of "
+                             "the top agents against PPO")
     parser.add_argument("--by", metavar="KEY[,KEY...]", type=lambda s: [k for k in s.split(",") if k], default=[],
                         help="split each agent's runs by the values of these logged params (flattened config "
                              "names, e.g. agent.l2.coef,agent.l2.mode or agent.learner); a condition is then "
@@ -119,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     from sweep.report.load import ReportError
 
     try:
-        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at)
+        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

@@ -148,7 +148,8 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
         row = {"run_id": run.info.run_id, "agent": agent, "label": agent_label(agent, tags, params),
                "wind": tags.get("wind", "?"),
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
-               "start_time": run.info.start_time}
+               "start_time": run.info.start_time,
+               "wall_minutes": (run.info.end_time - run.info.start_time) / 60000 if run.info.end_time else np.nan}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
         row.update({key: logged.get(key, np.nan) for key in metrics.EVAL_KEYS})
         if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's

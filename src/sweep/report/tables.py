@@ -230,7 +230,8 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
     """Per condition x wind, sorted by the primary measure ``keeps_hovering`` (the share of evaluations in the
     second half of training at >= 50% success, stats.late_evaluations; ties by IQM final reward): that share
     (mean ± t CI over seeds, and per seed), P(> PPO) on it [95% CI], the IQM final reward [95% CI], the final
-    and the best policy's end-of-run success (mean, per seed) and the final readings of the summary."""
+    and the best policy's end-of-run success (mean, per seed), the final readings of the summary and the mean wall
+    time of a run (MLflow start to end: training, diagnostics and evaluation)."""
     df = runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
@@ -245,7 +246,8 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
                "late_success": g["late_success"].mean(), "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1],
                "p_improve_ci_high": poi[2], "iqm_final_reward": iqm[0], "iqm_ci_low": iqm[1], "iqm_ci_high": iqm[2],
                **{f"success_{p}": g[_key(p, "success_rate")].mean() for p in SHOWN},
-               **{column: g[column].mean() for column in FINALS if column != "final_reward"}}
+               **{column: g[column].mean() for column in FINALS if column != "final_reward"},
+               "wall_minutes": g["wall_minutes"].mean()}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  "Keeps hovering (%)": _pm(100 * keep, 100 * half, 0), "per seed": _per_seed(g, "keeps_hovering"),
                  "P(> PPO) [95% CI]": _interval(*poi, 2),
@@ -253,7 +255,8 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
                  **{f"Success {p} (%)": f"{_fixed(100 * num[f'success_{p}'], 0)} ({_per_seed(g, _key(p, 'success_rate'))})"
                     for p in SHOWN},
                  **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in CURVES
-                    if c.final and c.final != "final_reward"}}
+                    if c.final and c.final != "final_reward"},
+                 "Wall time per run (min)": _fixed(num["wall_minutes"], 1)}
         numbers.append(num)
         display.append(shown)
     numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
@@ -391,7 +394,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             "of the agent keeps hovering more than a PPO run in the same wind, 95% bootstrap CI; IQM final reward "
             f"(mean over the last {stats.FINAL_FRACTION:.0%} of training) with its 95% stratified-bootstrap CI; "
             f"success of the final and of the best policy at the end of the run: {policies}; then the summary's "
-            "final readings (mean over seeds).\n\n" + markdown(l_display))
+            "final readings (mean over seeds) and the mean wall time of a run (MLflow start to end).\n\n" + markdown(l_display))
         written += [out / "leaderboard.csv", out / "leaderboard.md"]
     if at:
         a_numbers, a_display = reward_at(runs, histories, conds, list(at), baseline)
