@@ -33,6 +33,8 @@ def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monke
     written = export(source, EXP, tmp_path / "archive", max_points=2)
     assert len(written) == 1 and export(source, EXP, tmp_path / "archive") == []  # each run once
     assert load(written[0]).run_id == original_id
+    (tmp_path / "archive" / "sub").mkdir()  # import searches directories recursively
+    written = [written[0].rename(tmp_path / "archive" / "sub" / written[0].name)]
 
     assert import_(archive_files([str(tmp_path / "archive")]), target) == (1, 0)
     assert import_(written, target) == (0, 1)  # importing twice adds nothing

@@ -128,11 +128,11 @@ def import_(paths: list[Path], uri: str, experiment: str | None = None) -> tuple
 
 
 def archive_files(paths: list[str]) -> list[Path]:
-    """The ``.npz`` files named, directories expanded (sorted)."""
+    """The ``.npz`` files named, directories expanded (with their subdirectories, sorted)."""
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            out += sorted(p.glob("*.npz"))
+            out += sorted(p.rglob("*.npz"))
         elif p.suffix == ".npz" and p.exists():
             out.append(p)
         else:
