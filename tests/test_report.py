@@ -1011,6 +1011,8 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
     shown = md_table(tmp_path / "out" / "leaderboard.md").set_index("Agent")
     assert shown.loc["PPO", "per seed"] == "40, 0" and shown.loc["L2 + PPO", "Keeps hovering (%)"] == "100 ± 0"
     assert list(board["wall_minutes"]) == [1.5, 1.5] and shown.loc["PPO", "Wall time per run (min)"] == "1.5"
+    summary = md_table(tmp_path / "out" / "summary.md").set_index("Agent")
+    assert summary.loc["L2 + PPO", "Wall time per run (min)"] == "1.5"
     assert (tmp_path / "out" / "performance_profile_paper.png").exists()
     point, lo, hi = rstats.performance_profile([1.0, 0.5], np.array([0.4, 0.5, 0.99, 1.0]))
     assert list(point) == [1.0, 0.5, 0.5, 0.0] and lo[0] == hi[0] == 1.0 and (lo[1], hi[1]) == (0.0, 1.0)

@@ -144,7 +144,7 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
     norm (the mean over the seeds that logged it; NaN, shown '–', where none did), collapse, share of
     RECOM's LR updates at a bound, the end-of-run evaluations' success and crash rates of the final policy and of
     the best ones (the CSV: eval[_best|_best_eval]_{success,crash}_pct, with the mean step each best came from;
-    shown: final and best), IQM [CI], P(improve over PPO) [CI], and with ``baseline`` = (KEY, VALUE) the IQM
+    shown: final and best), IQM [CI], P(improve over PPO) [CI], the mean wall time of a run, and with ``baseline`` = (KEY, VALUE) the IQM
     difference to the baseline condition [CI]."""
     df = runs.merge(per_run, on="run_id", how="left")
     numbers, display = [], []
@@ -163,7 +163,8 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                "eval_best_source_step": source_step(g, "best")[0],
                "eval_best_eval_source_step": source_step(g, "best_eval")[0],
                "iqm_final_reward": iqm, "iqm_ci_low": iqm_lo, "iqm_ci_high": iqm_hi,
-               "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1], "p_improve_ci_high": poi[2]}
+               "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1], "p_improve_ci_high": poi[2],
+               "wall_minutes": g["wall_minutes"].mean()}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in CURVES if c.final},
                  "Collapse": f"{num['collapse']:.1f}",
@@ -173,7 +174,8 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                     for what in ("success", "crash") for p in SHOWN},
                  "Best taken at (step)": source_step(g, "best")[1],
                  "IQM final reward [95% CI]": _interval(iqm, iqm_lo, iqm_hi, 1),
-                 "P(> PPO) [95% CI]": _interval(*poi, 2)}
+                 "P(> PPO) [95% CI]": _interval(*poi, 2),
+                 "Wall time per run (min)": _fixed(num["wall_minutes"], 1)}
         if baseline is not None:
             key, value = baseline
             base = baseline_of(present, cond, key, value)
@@ -349,7 +351,8 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             f"the run, mean over seeds, of two policies: {policies}; best taken at = the timestep the best policy "
             f"was kept at (mean over seeds); {missing}; IQM with 95% "
             "stratified-bootstrap CI (rliable); P(> PPO) = rliable probability of improvement of the final reward "
-            "over PPO in the same wind condition.")
+            "over PPO in the same wind condition; wall time per run = MLflow start to end (training, "
+            "diagnostics, evaluation), mean over seeds.")
     if baseline is not None:
         key, value = baseline
         note += (f" Δ IQM vs {key}={value} = IQM of the final reward minus that of the condition with "
