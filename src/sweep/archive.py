@@ -2,8 +2,8 @@
 
 A long study (docs/remedies_study.md: ~9 h on two cores) outlives one machine, and the MLflow store it
 writes stays outside the work tree. ``export`` writes each FINISHED run of an experiment as one ``.npz``:
-params, tags, start and end times, the small artifacts (config, evaluation flights; models only with
-``--models``) and every metric's history, thinned to at most ``--max-points`` points per key (the first,
+params, tags, start and end times, the artifacts named by ``--artifacts`` (default: the config and the
+final policy's evaluation flights, which the report draws) and every metric's history, thinned to at most ``--max-points`` points per key (the first,
 the last and evenly spaced ones between; a key with fewer points, such as ``eval/*``, is kept whole).
 ``import`` re-creates those runs, FINISHED, in another store (tag ``archived_from`` = the exported run id,
 so importing twice adds nothing) and writes each run's ``job.json`` FINISHED where the run's own config
@@ -23,6 +23,7 @@ import argparse
 import io
 import json
 import sys
+from fnmatch import fnmatch
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +34,9 @@ from sweep.tracking import (PROJECT_ROOT, RunRecord, archived_run_ids, read_fini
                             write_finished_run)
 
 MAX_POINTS = 400
-MODEL_SUFFIX = ".zip"
 CONFIG = "config.yaml"
+ARTIFACTS = (CONFIG, "eval_trajectories.npz")  # ~90 KB of a 20M-step run's ~360 KB: models and the best
+                                               # policies' flights stay in the store unless asked for
 
 
 def thin(steps: np.ndarray, *columns: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, ...]:
@@ -83,12 +85,14 @@ def load(path: Path) -> RunRecord:
     return record
 
 
-def export(uri: str, experiment: str, out: Path, max_points: int = MAX_POINTS, models: bool = False) -> list[Path]:
-    """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id); the files written."""
+def export(uri: str, experiment: str, out: Path, max_points: int = MAX_POINTS,
+           artifacts: tuple[str, ...] = ARTIFACTS) -> list[Path]:
+    """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id) with the artifacts whose path
+    matches one of the ``artifacts`` glob patterns; the files written."""
     done = {load(p).run_id for p in out.glob("*.npz")} if out.exists() else set()
     written = []
     for record in read_finished_runs(uri, experiment, skip=done,
-                                     artifacts=lambda path: models or not path.endswith(MODEL_SUFFIX)):
+                                     artifacts=lambda path: any(fnmatch(path, p) for p in artifacts)):
         path = out / file_name(record)
         save(record, path, max_points)
         written.append(path)
@@ -147,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--experiment", required=True)
     ex.add_argument("--out", required=True, type=Path)
     ex.add_argument("--max-points", type=int, default=MAX_POINTS, help="per metric key (default %(default)s)")
-    ex.add_argument("--models", action="store_true", help="also the trained models (model*.zip)")
+    ex.add_argument("--artifacts", default=",".join(ARTIFACTS), type=lambda s: tuple(x for x in s.split(",") if x),
+                    help="glob patterns of the artifacts to keep (default %(default)s; '*' keeps all, models too)")
     im = sub.add_parser("import", help="create the archived runs in the store (each once)")
     im.add_argument("paths", nargs="+", help=".npz files or directories of them")
     im.add_argument("--experiment", help="import into this experiment (default: each run's own)")
@@ -159,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "export":
             if args.max_points < 2:
                 raise ValueError(f"--max-points {args.max_points}: must be at least 2 (the first and the last point)")
-            written = export(uri, args.experiment, args.out, args.max_points, args.models)
+            written = export(uri, args.experiment, args.out, args.max_points, args.artifacts)
             print(f"archive: {len(written)} run(s) of {args.experiment!r} written to {args.out}")
         else:
             created, present = import_(archive_files(args.paths), uri, args.experiment)
