@@ -1,6 +1,6 @@
 """Study archives: the finished runs of an experiment as small files that travel with the repository.
 
-A long study (docs/remedies_study.md: ~9 h on two cores) outlives one machine, and the MLflow store it
+A long study (docs/remedies_study.md: ~13 to ~31 h on two cores) outlives one machine, and the MLflow store it
 writes stays outside the work tree. ``export`` writes each FINISHED run of an experiment as one ``.npz``:
 params, tags, start and end times, the artifacts named by ``--artifacts`` (default: the config and the
 final policy's evaluation flights, which the report draws) and every metric's history, thinned to at most ``--max-points`` points per key (the first,
@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from sweep.checkpoint import JobRecord, job_key
-from sweep.tracking import (PROJECT_ROOT, RunRecord, archived_run_ids, read_finished_runs, tracking_uri,
-                            write_finished_run)
+from sweep.checkpoint import JobRecord
+from sweep.run import own_job_record
+from sweep.tracking import RunRecord, archived_run_ids, read_finished_runs, tracking_uri, write_finished_run
 
 MAX_POINTS = 400
 CONFIG = "config.yaml"
@@ -74,6 +74,12 @@ def save(record: RunRecord, path: Path, max_points: int = MAX_POINTS) -> None:
     tmp.replace(path)
 
 
+def load_meta(path: Path) -> dict:
+    """The run's ``meta`` record only (np.load reads an .npz member when asked for it)."""
+    with np.load(path, allow_pickle=False) as data:
+        return json.loads(str(data["meta"]))
+
+
 def load(path: Path) -> RunRecord:
     with np.load(path, allow_pickle=False) as data:
         meta = json.loads(str(data["meta"]))
@@ -90,7 +96,7 @@ def export(uri: str, experiment: str, out: Path, max_points: int = MAX_POINTS,
            artifacts: tuple[str, ...] = ARTIFACTS) -> list[Path]:
     """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id) with the artifacts whose path
     matches one of the ``artifacts`` glob patterns; the files written."""
-    done = {load(p).run_id for p in out.glob("*.npz")} if out.exists() else set()
+    done = {load_meta(p)["run_id"] for p in out.glob("*.npz")} if out.exists() else set()
     written = []
     for record in read_finished_runs(uri, experiment, skip=done,
                                      artifacts=lambda path: any(fnmatch(path, p) for p in artifacts)):
@@ -105,9 +111,7 @@ def job_record_of(record: RunRecord, uri: str) -> JobRecord | None:
     config (its ``config.yaml`` artifact) under its ``train.checkpoint_dir``; None without a config."""
     if CONFIG not in record.artifacts:
         return None
-    cfg = OmegaConf.create(record.artifacts[CONFIG].decode())
-    root = Path(cfg.train.checkpoint_dir) if cfg.train.checkpoint_dir else PROJECT_ROOT / "checkpoints"
-    return JobRecord(root / job_key(cfg, uri))
+    return own_job_record(OmegaConf.create(record.artifacts[CONFIG].decode()), uri)
 
 
 def import_(paths: list[Path], uri: str, experiment: str | None = None) -> tuple[int, int]:

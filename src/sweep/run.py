@@ -51,11 +51,16 @@ def job_tags(cfg: DictConfig) -> dict[str, str]:
     return tags
 
 
+def own_job_record(cfg: DictConfig, uri: str) -> JobRecord:
+    """The config's own checkpoint directory for the store at ``uri``: ``<train.checkpoint_dir>/<job key>``."""
+    root = Path(cfg.train.checkpoint_dir) if cfg.train.checkpoint_dir else PROJECT_ROOT / "checkpoints"
+    return JobRecord(root / job_key(cfg, uri))
+
+
 def job_record(cfg: DictConfig) -> JobRecord:
     """The checkpoint directory of this job: ``resume`` names one, else the config's own."""
     uri = tracking_uri(cfg.tracking.uri)
-    root = Path(cfg.train.checkpoint_dir) if cfg.train.checkpoint_dir else PROJECT_ROOT / "checkpoints"
-    own = JobRecord(root / job_key(cfg, uri))
+    own = own_job_record(cfg, uri)
     resume = str(cfg.resume)
     if resume in ("auto", "never"):
         return own
