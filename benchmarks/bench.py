@@ -25,7 +25,11 @@ One table, all rows measured in this run:
   checkpoints, final evaluations: a real run); the remedy's own time (its callback hooks, timed inside the run)
   as a share of the run's training time (``learn()``; start-up and evaluations left out, as they are a
   negligible part of a 20M-step run), and that time against PPO's (best of ``REPEATS``). ``python benchmarks/bench.py remedies``
-  runs only these rows.
+  runs only these rows;
+* the remedies study's cadence (``python benchmarks/bench.py study``, also part of ``make bench``): two concurrent
+  ``experiment=remedies`` PPO runs of ``STUDY_STEPS`` timesteps (the study's setting: two jobs on two cores) with
+  the diagnostics every rollout (``plasticity.every_rollouts=1``, the pilot's) against every 10 (the study's),
+  aggregate timesteps/s over the pair's span, ``REPEATS`` interleaved passes, best kept.
 """
 from __future__ import annotations
 
@@ -49,6 +53,7 @@ E2E_STEPS = (102_400, 512_000)  # end-to-end JAX runs: the steady rate comes fro
 REMEDY_ROLLOUTS = 200  # > ReDo's 100-update period, so one ReDo event falls in the timed part
 REMEDY_AGENTS = ("ppo", "l2", "recom_l2", "redo", "shrink_perturb", "cbp_l2", "l2_init", "layer_norm", "l2_lr_decay",
                  "ppo_target_kl")
+STUDY_STEPS = 1_024_000  # per run of the study-cadence rows (500 rollouts of 2048)
 PAPER_STUDY = (30, 20_000_000)  # runs x timesteps of `python -m sweep -m experiment=paper`
 DT = 0.01
 
@@ -317,6 +322,29 @@ def remedy_rows() -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
+def study_run(every: int, seed: int, barrier: str, parties: int = 2) -> dict:
+    """One ``experiment=remedies`` PPO job (JAX, paper layout) with the diagnostics every ``every`` rollouts."""
+    t0, wall = _timed_run(["experiment=remedies", "agent=ppo", f"seed={seed}", f"train.total_timesteps={STUDY_STEPS}",
+                           f"plasticity.every_rollouts={every}"], barrier, parties)
+    return {"every": every, "t0": t0, "t1": t0 + wall}
+
+
+def study_rows() -> list[tuple[str, str, str, str, str]]:
+    """The pair of study jobs, diagnostics every rollout vs every 10: aggregate ts/s (best of REPEATS)."""
+    rates: dict[int, list[float]] = {1: [], 10: []}
+    for _ in range(REPEATS):
+        for every in rates:
+            with tempfile.TemporaryDirectory() as barrier:
+                pair = _fresh_pool_map(study_run, [(every, 0, barrier), (every, 1, barrier)])
+            span = max(r["t1"] for r in pair) - min(r["t0"] for r in pair)
+            rates[every].append(2 * STUDY_STEPS / span)
+            print("study", every, round(rates[every][-1]), flush=True)
+    one, ten = max(rates[1]), max(rates[10])
+    return [("remedies study: 2 concurrent runs, aggregate ts/s, diagnostics every rollout vs every 10",
+             f"{one:,.0f} {[round(r) for r in rates[1]]}", f"{ten:,.0f} {[round(r) for r in rates[10]]}",
+             f"{ten / one:.2f}x", "")]
+
+
 def _fresh_pool_map(fn, argss):
     """Run fn(*args) for each args in fresh loky workers, all concurrently; return results in order."""
     from joblib import Parallel, delayed
@@ -342,6 +370,9 @@ def main() -> int:
 
     if sys.argv[1:] == ["remedies"]:
         rows += remedy_rows()
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:] == ["study"]:
+        rows += study_rows()
         return _print_table(rows, t_start, load0)
     import numba
 
@@ -452,6 +483,7 @@ def main() -> int:
     rows.append(("peak RSS per run, MB", "", ", ".join(f"{k} {v:,.0f}" for k, v in rss.items()), "",
                  f"<= 1 GB: {ok(worst <= TARGETS['rss_mb'])}"))
     rows += remedy_rows()
+    rows += study_rows()
     return _print_table(rows, t_start, load0)
 
 

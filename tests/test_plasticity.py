@@ -295,6 +295,34 @@ def test_diagnostics_log_every_reading_per_layer_and_pooled(name):
     assert stats["active_ratio_layer1"] <= 1 - 10 / 64 + 1e-9
 
 
+@pytest.mark.parametrize("name", LEARNERS)
+def test_diagnostics_cadence_changes_only_what_is_logged(name, tmp_path, monkeypatch):
+    """plasticity.every_rollouts=3 (experiment=remedies uses 10) against 1 on the same seed, 8 rollouts: the run is
+    the same run (training reward, losses, every evaluation and probe equal to the last digit); the diagnostics
+    are logged at rollouts 1, 4 and 7 only, with the values the every-rollout run logged there."""
+    from mlflow.tracking import MlflowClient
+
+    from sweep.run import run
+
+    config = [f"agent.learner={name}", "agent.ppo.n_steps=256", "agent.ppo.n_epochs=2", "train.total_timesteps=2048",
+              "eval.every_timesteps=1024", "eval.episodes=2", "env.episode_seconds=1.0", "seed=4",
+              "wind.segment_steps=1024"]
+    kept = ("rollout/ep_rew_mean", "train/loss", "train/approx_kl", "eval/return", "eval_best/return",
+            "plasticity/probe_loss")
+    diagnostics = ("plasticity/weight_norm", "plasticity/dormant_ratio", "plasticity/grad_norm")
+    got = {}
+    for every in (1, 3):
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := f"sqlite:///{tmp_path / f'every{every}.db'}")
+        run_id = run(compose_cfg([*config, f"plasticity.every_rollouts={every}"]), tmp_path / f"every{every}")
+        client = MlflowClient(uri)
+        got[every] = {k: [(m.step, m.value) for m in client.get_metric_history(run_id, k)] for k in kept + diagnostics}
+    for key in kept:
+        assert got[3][key] == got[1][key] and got[1][key], key
+    for key in diagnostics:
+        every_rollout = got[1][key]
+        assert len(every_rollout) == 8
+        assert got[3][key] == [every_rollout[i] for i in (0, 3, 6)], key
+
 # ---- the plasticity probe (Lyle et al. 2022) ------------------------------------------------------------
 @pytest.mark.parametrize("name", LEARNERS)
 def test_probe_fits_worse_once_units_are_saturated(name):
