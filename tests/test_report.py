@@ -982,17 +982,15 @@ def test_reward_at_steps_gives_the_iqm_and_its_difference_to_the_baseline(tmp_pa
     assert code == 0 and not (tmp_path / "plain" / "reward_at.md").exists()
 
 
-def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path):
-    """Evaluations every 100 steps to 1000, 'late' = steps > 500 (five of them). PPO seed 0 hovers in 2 of 5 late
-    evaluations, seed 1 never; L2 seed 0 at 100%, seed 1 at 50% (counts: >= 50%). Leaderboard: L2 first at
-    100 ± 0%, PPO 20% (per seed 40, 0); P(L2 > PPO) = 1 (every pair). Profile of the late mean success:
-    L2's runs (1.0, 0.5) -> 100% above τ = 0.4, 50% above 0.5 (strictly) and 0.99, 0% above 1."""
-    from sweep.report import stats as rstats
+LATE = {("ppo", 0): [0.6, 0.6, 0.0, 0.0, 0.0], ("ppo", 1): [0.0] * 5, ("l2", 0): [1.0] * 5, ("l2", 1): [0.5] * 5}
 
+
+def log_late_evaluations(tmp_path, late: dict) -> str:
+    """Experiment 'lb': per (agent, seed) evaluations every 100 steps to 1000, the last five (steps > 500, the
+    'late' ones) given; the first five at 0.1 x seed. Runs of 1 and 2 minutes. Returns the store's URI."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(uri)
     exp_id = client.create_experiment("lb")
-    late = {("ppo", 0): [0.6, 0.6, 0.0, 0.0, 0.0], ("ppo", 1): [0.0] * 5, ("l2", 0): [1.0] * 5, ("l2", 1): [0.5] * 5}
     for (agent, seed), values in late.items():
         run_id = client.create_run(exp_id, start_time=1_000_000, tags={"agent": agent, "wind": "paper", "seed": str(seed),
                                                                         "run_name": f"{agent}-s{seed}"}).info.run_id
@@ -1001,6 +999,17 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
         metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
         client.log_batch(run_id, metrics=metrics, params=[Param("agent.l2.enabled", str(agent == "l2"))])
         client.set_terminated(run_id, end_time=1_000_000 + 60_000 * (seed + 1))  # runs of 1 and 2 minutes
+    return uri
+
+
+def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path):
+    """Evaluations every 100 steps to 1000, 'late' = steps > 500 (five of them). PPO seed 0 hovers in 2 of 5 late
+    evaluations, seed 1 never; L2 seed 0 at 100%, seed 1 at 50% (counts: >= 50%). Leaderboard: L2 first at
+    100 ± 0%, PPO 20% (per seed 40, 0); P(L2 > PPO) = 1 (every pair). Profile of the late mean success:
+    L2's runs (1.0, 0.5) -> 100% above τ = 0.4, 50% above 0.5 (strictly) and 0.99, 0% above 1."""
+    from sweep.report import stats as rstats
+
+    uri = log_late_evaluations(tmp_path, LATE)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "lb")
     assert code == 0, stdout + stderr
     board = pd.read_csv(tmp_path / "out" / "leaderboard.csv")
@@ -1016,6 +1025,32 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
     assert (tmp_path / "out" / "performance_profile_paper.png").exists()
     point, lo, hi = rstats.performance_profile([1.0, 0.5], np.array([0.4, 0.5, 0.99, 1.0]))
     assert list(point) == [1.0, 0.5, 0.5, 0.0] and lo[0] == hi[0] == 1.0 and (lo[1], hi[1]) == (0.0, 1.0)
+
+
+def test_versus_table_compares_every_agent_with_each_reference(tmp_path):
+    """--vs ppo,l2 on LATE (keeps hovering: PPO 0.4 and 0; L2 1 and 1; a third agent ReDo 0.4 and 0, PPO's):
+    L2 vs PPO: P = 1, Δ = +80 pp with the bootstrap CI [60, 100] (L2's resamples are all 1; PPO's means are 0.4,
+    0.2 or 0 with probabilities 1/4, 1/2, 1/4); ReDo vs PPO: P = 0.5 [0, 1], Δ 0; each reference against itself
+    empty. --vs nope: one error line naming the agents there are."""
+    late = {**LATE, ("l2", 1): [1.0] * 5, ("redo", 0): LATE[("ppo", 0)], ("redo", 1): LATE[("ppo", 1)]}
+    uri = log_late_evaluations(tmp_path, late)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "lb", "--vs", "ppo,l2")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "versus.csv").set_index("agent")
+    assert list(got.index) == ["l2", "ppo", "redo"]  # keeps hovering, highest first (PPO and ReDo tie: display order)
+    l2 = got.loc["l2"]
+    assert (l2["p_improve_over_ppo"], l2["delta_keeps_vs_ppo"]) == pytest.approx((1.0, 0.8))
+    assert (l2["delta_keeps_vs_ppo_ci_low"], l2["delta_keeps_vs_ppo_ci_high"]) == pytest.approx((0.6, 1.0))
+    assert np.isnan(l2["p_improve_over_l2"]) and np.isnan(got.loc["ppo", "p_improve_over_ppo"])
+    redo = got.loc["redo"]
+    assert (redo["p_improve_over_ppo"], redo["delta_keeps_vs_ppo"]) == pytest.approx((0.5, 0.0))
+    assert redo["p_improve_over_l2"] == 0.0 and redo["delta_keeps_vs_l2"] == pytest.approx(-0.8)
+    shown = md_table(tmp_path / "out" / "versus.md").set_index("Agent")
+    assert shown.loc["L2 + PPO", "Δ vs PPO (pp) [95% CI]"] == "80 [60, 100]"
+    assert shown.loc["PPO", "P(> L2 + PPO) [95% CI]"] == "0.00 [0.00, 0.00]"
+    code, _, stderr = run_report(uri, tmp_path / "bad", "--experiment", "lb", "--vs", "ppo,nope")
+    lines = stderr.strip().splitlines()
+    assert code == 1 and len(lines) == 1 and "--vs nope" in lines[0] and "l2, ppo, redo" in lines[0]
 
 
 def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):

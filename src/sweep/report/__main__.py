@@ -7,7 +7,9 @@ learning_rate_W, eval_success_W and eval_crash_W (only if runs evaluated during 
 eval.every_timesteps > 0); eval_flights_3d and eval_position_axes (the final policy's flights; the best policy's
 where no run evaluated its final policy). Tables: table3.{md,tex,csv} (evaluation under wind of the final policy
 and of the best one kept during training, side by side, and the top seed's numbers), summary.{md,csv} (training
-outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule).
+outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule), leaderboard.{md,csv}
+(runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
+reference agents on that measure).
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import numpy as np
 
 
 def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
-          baseline: str | None = None, at: list[int] = (), agents: list[str] = ()) -> Path:
+          baseline: str | None = None, at: list[int] = (), agents: list[str] = (), vs: list[str] = ()) -> Path:
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
@@ -43,6 +45,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             raise load.ReportError(f"--agents {','.join(unknown)}: no finished runs of experiment {exp_name!r}; it has "
                                    f"{', '.join(sorted(set(runs['agent'])))}")
         runs = runs[runs["agent"].isin(agents)].reset_index(drop=True)
+    unknown = sorted(set(vs) - set(runs["agent"]))
+    if unknown:
+        raise load.ReportError(f"--vs {','.join(unknown)}: no finished runs of that agent in experiment {exp_name!r}"
+                               f"{' among --agents' if agents else ''}; it has {', '.join(sorted(set(runs['agent'])))}")
     runs, conds = conditions.build(runs, list(by))
     base = conditions.parse_baseline(baseline, conds) if baseline is not None else None
 
@@ -84,7 +90,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
-    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late)
+    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))
@@ -124,11 +130,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="also write reward_at.md/.csv: the IQM [95%% CI] of the training reward at these "
                              "timesteps (and with --baseline the IQM difference to the baseline), e.g. "
                              "--at 100000,250000,500000")
+    parser.add_argument("--vs", metavar="NAME[,NAME...]", type=lambda s: [a for a in s.split(",") if a], default=[],
+                        help="also write versus.md/.csv: every agent against each of these reference agents on the "
+                             "leaderboard's primary measure (P(> reference) and the difference of means, each with "
+                             "its 95%% CI), e.g. ppo,l2_lr_decay,ppo_target_kl")
     args = parser.parse_args(argv)
     from sweep.report.load import ReportError
 
     try:
-        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents)
+        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents, args.vs)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

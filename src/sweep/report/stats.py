@@ -6,6 +6,8 @@ Statistics used (all over seeds; a seed is one run):
 * IQM: rliable's ``metrics.aggregate_iqm`` with a 95% stratified-bootstrap percentile CI;
 * IQM difference to a baseline condition: 95% percentile-bootstrap CI, both conditions' runs resampled
   independently;
+* difference of means to a reference condition (the leaderboard's ``--vs``): 95% percentile-bootstrap CI,
+  both conditions' runs resampled independently;
 * probability of improvement: rliable's ``metrics.probability_of_improvement`` (Mann-Whitney U / (n_x n_y)),
   with a 95% CI from independent bootstrap resampling of both agents' runs.
 
@@ -169,6 +171,24 @@ def iqm_diff_ci(scores_x, scores_y) -> tuple[float, float, float]:
 
     def diff(a, b, axis=-1):  # aggregate_iqm (a 25% trimmed mean) of each resample, vectorized
         return stats.trim_mean(a, 0.25, axis=axis) - stats.trim_mean(b, 0.25, axis=axis)
+
+    ci = _bootstrap((x, y), diff, vectorized=True, paired=False).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+def mean_diff_ci(scores_x, scores_y) -> tuple[float, float, float]:
+    """mean(X) - mean(Y) over runs and its 95% percentile-bootstrap CI (both samples resampled independently;
+    NaN CI if either has fewer than 2 runs)."""
+    x, y = (np.asarray(s, dtype=float) for s in (scores_x, scores_y))
+    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+    if len(x) == 0 or len(y) == 0:
+        return np.nan, np.nan, np.nan
+    point = float(x.mean() - y.mean())
+    if len(x) < 2 or len(y) < 2:
+        return point, np.nan, np.nan
+
+    def diff(a, b, axis=-1):
+        return a.mean(axis=axis) - b.mean(axis=axis)
 
     ci = _bootstrap((x, y), diff, vectorized=True, paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)

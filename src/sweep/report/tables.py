@@ -269,6 +269,41 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
     return numbers.reset_index(drop=True), display.reset_index(drop=True)
 
 
+def versus(runs: pd.DataFrame, late: pd.DataFrame, conds: Conditions,
+           references: list[str]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Every condition against each reference agent (``--vs``) on the primary measure ``keeps_hovering``, in the
+    same wind and with the same --by values (conditions.baseline_of): rliable's P(condition > reference) [95%
+    bootstrap CI] and the difference of the seed means in percentage points [95% bootstrap CI]. Rows in the
+    leaderboard's order (keeps hovering, highest first, per wind); a reference against itself is left empty."""
+    df = runs.merge(late, on="run_id", how="left")
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        dw = df[df["wind"] == wind]
+        present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
+        keep, half, _ = stats.mean_t_ci(g["keeps_hovering"])
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g), "keeps_hovering": keep}
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g), "Keeps hovering (%)": _pm(100 * keep, 100 * half, 0)}
+        for ref in references:
+            other = baseline_of(present, cond, "agent", ref) if ref in set(present["agent"]) else None
+            theirs = dw.loc[dw["condition"] == other, "keeps_hovering"] if other is not None else []
+            poi = stats.poi_ci(g["keeps_hovering"], theirs) if other is not None else (np.nan,) * 3
+            delta = stats.mean_diff_ci(g["keeps_hovering"], theirs) if other is not None else (np.nan,) * 3
+            num.update({f"p_improve_over_{ref}": poi[0], f"p_improve_over_{ref}_ci_low": poi[1],
+                        f"p_improve_over_{ref}_ci_high": poi[2], f"delta_keeps_vs_{ref}": delta[0],
+                        f"delta_keeps_vs_{ref}_ci_low": delta[1], f"delta_keeps_vs_{ref}_ci_high": delta[2]})
+            name = conds.labels.get(ref, ref)
+            shown[f"P(> {name}) [95% CI]"] = _interval(*poi, 2)
+            shown[f"Δ vs {name} (pp) [95% CI]"] = _interval(*(100 * v for v in delta), 0)
+        numbers.append(num)
+        display.append(shown)
+    numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
+    if len(numbers):
+        order = numbers.sort_values(["wind", "keeps_hovering"], ascending=[True, False], na_position="last",
+                                    kind="stable").index
+        numbers, display = numbers.loc[order], display.loc[order]
+    return numbers.reset_index(drop=True), display.reset_index(drop=True)
+
+
 def reward_at(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, steps: list[int],
               baseline: tuple[str, str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The training reward at given timesteps: per run the last ``rollout/ep_rew_mean`` logged at or before each
@@ -311,9 +346,10 @@ def eval_wind(runs: pd.DataFrame) -> str:
 
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
                  baseline: tuple[str, str] | None = None, at: list[int] = (),
-                 late: pd.DataFrame | None = None) -> list[Path]:
+                 late: pd.DataFrame | None = None, vs: list[str] = ()) -> list[Path]:
     """Every table of the report; ``late`` is stats.late_evaluations(histories), computed by the caller once for
-    the leaderboard and the performance profile (computed here when not given)."""
+    the leaderboard and the performance profile (computed here when not given); ``vs``: reference agents of
+    versus.md (none: no such table)."""
     per_run = stats.per_run_curve_stats(histories)
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
@@ -399,6 +435,17 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             f"success of the final and of the best policy at the end of the run: {policies}; then the summary's "
             "final readings (mean over seeds) and the mean wall time of a run (MLflow start to end).\n\n" + markdown(l_display))
         written += [out / "leaderboard.csv", out / "leaderboard.md"]
+        if vs:
+            v_numbers, v_display = versus(runs, late, conds, list(vs))
+            v_numbers.to_csv(out / "versus.csv", index=False)
+            (out / "versus.md").write_text(
+                "Each agent against the references (--vs) on the leaderboard's primary measure, keeps hovering (the "
+                f"share of a run's evaluations in the second half of training at >= {stats.HOVER:.0%} success), in the "
+                "same wind and --by values: P(> reference) = rliable's probability that a run of the agent keeps "
+                "hovering more than a run of the reference (ties count half), 95% bootstrap CI; Δ = difference of "
+                "the seed means in percentage points, 95% percentile-bootstrap CI resampling both agents' seeds. "
+                "An interval that excludes 0.5 (P) or 0 (Δ) separates the two.\n\n" + markdown(v_display))
+            written += [out / "versus.csv", out / "versus.md"]
     if at:
         a_numbers, a_display = reward_at(runs, histories, conds, list(at), baseline)
         a_numbers.to_csv(out / "reward_at.csv", index=False)
