@@ -8,44 +8,48 @@
 #   docs/remedies_study/run.sh none          # PPO and the 3 best agents, wind none (AGENTS_NONE)
 #   docs/remedies_study/run.sh fast          # PPO and the 4 best agents, 16 envs x 128 steps (AGENTS_FAST)
 #   docs/remedies_study/run.sh export        # new FINISHED runs -> docs/remedies_study/runs (commit them)
-#   docs/remedies_study/run.sh report        # every table and figure of docs/remedies_study.md
+#   docs/remedies_study/run.sh report        # every table and figure of docs/remedies_study.md (AGENTS_TOP=ppo,a,b,c:
+#                                            # also the curves of those agents alone, in remedies_study/top)
 #
 # Every phase is an ordinary Hydra multirun with resume=auto (the default): a job whose run is FINISHED in the
 # store (trained here, or imported) is skipped, an interrupted one continues from its checkpoint. The store,
-# checkpoints and sweep dirs live outside the work tree in $STUDY; the sweeps run the code of one commit
-# (STUDY_COMMIT) from a worktree there, because a job's key hashes its config: the same commit and the same
-# $STUDY find the same jobs, and so do the runs imported from the archive.
+# checkpoints and sweep dirs live outside the work tree in $STUDY; each phase runs the code of one pinned commit
+# from a worktree there ($STUDY/code-<commit>), because a job's key hashes its config: the same commit and the
+# same $STUDY find the same jobs, and so do the runs imported from the archive. The equivalence and the pilot ran
+# at PILOT_COMMIT (diagnostics every rollout); main, none and fast at MAIN_COMMIT, whose experiment=remedies
+# computes the diagnostics every 10 rollouts (the run itself unchanged: tests/test_plasticity.py).
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/remedies}
-STUDY_COMMIT=fce62f7
-CODE=$STUDY/code
+PILOT_COMMIT=fce62f7
+MAIN_COMMIT=88620f6
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/remedies_study/runs
 AGENTS_NONE=${AGENTS_NONE:-}   # set from the main phase's leaderboard, e.g. ppo,a,b,c
 AGENTS_FAST=${AGENTS_FAST:-}   # e.g. ppo,a,b,c,d
+AGENTS_TOP=${AGENTS_TOP:-}     # report: the agents whose curves are drawn against PPO's, e.g. ppo,a,b,c
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 
 mkdir -p "$STUDY"
-[ -d "$CODE" ] || git -C "$ROOT" worktree add --detach "$CODE" "$STUDY_COMMIT"
 
-sweep() {  # the study's code, the study's store and checkpoints; all output under $STUDY
-  local name=$1; shift
-  (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep -m train.checkpoint_dir="$STUDY/ckpt" \
+sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's store and checkpoints; output under $STUDY
+  local code=$STUDY/code-$1 name=$2; shift 2
+  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "${code##*/code-}"
+  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
 }
 need() { [ -n "$2" ] || { echo "run.sh: set $1 (comma-separated agents, PPO first) from the main leaderboard" >&2; exit 2; }; }
 
 case ${1:-} in
   import)      (cd "$STUDY" && "$PY" -m sweep.archive import "$ARCHIVE") ;;
-  equivalence) sweep equivalence experiment=equivalence train.total_timesteps=500000 "seed=$(seq -s, 0 19)" \
+  equivalence) sweep $PILOT_COMMIT equivalence experiment=equivalence train.total_timesteps=500000 "seed=$(seq -s, 0 19)" \
                  eval.every_timesteps=0 tracking.experiment=equivalence-20 ;;
-  pilot)       sweep pilot experiment=remedies train.total_timesteps=6000000 seed=0,1,2 tracking.experiment=remedies-pilot ;;
-  main)        sweep main experiment=remedies ;;
-  none)        need AGENTS_NONE "$AGENTS_NONE"; sweep none experiment=remedies wind=none "agent=$AGENTS_NONE" ;;
+  pilot)       sweep $PILOT_COMMIT pilot experiment=remedies train.total_timesteps=6000000 seed=0,1,2 tracking.experiment=remedies-pilot ;;
+  main)        sweep $MAIN_COMMIT main experiment=remedies ;;
+  none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" ;;
   fast)        need AGENTS_FAST "$AGENTS_FAST"
-               sweep fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ;;
+               sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ;;
   export)      for exp in equivalence-20 remedies-pilot remedies; do
                  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                done ;;
@@ -54,6 +58,10 @@ case ${1:-} in
                   --by agent.learner --baseline agent.learner=sb3 --at 100000,250000,500000)
                (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies-pilot --out "$out/pilot")
                (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/main" --by env.n_envs \
-                  --baseline agent=ppo) ;;
+                  --baseline agent=ppo --vs ppo,l2_lr_decay,ppo_target_kl)
+               if [ -n "$AGENTS_TOP" ]; then  # curves of the top agents against PPO
+                 (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/top" --by env.n_envs \
+                    --baseline agent=ppo --agents "$AGENTS_TOP")
+               fi ;;
   *) sed -n 2,11p "$0"; exit 2 ;;
 esac
