@@ -57,6 +57,8 @@ def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monke
     monkeypatch.setenv("MLFLOW_TRACKING_URI", target)
     assert run(compose_cfg(overrides), tmp_path / "job_b") == copy.info.run_id
     assert len(b.search_runs([b.get_experiment_by_name(EXP).experiment_id])) == 1
+    # Exporting the target store into the same archive writes nothing: the imported run is the archived one.
+    assert export(target, EXP, tmp_path / "archive" / "sub") == []
 
 
 def test_cli_errors_name_the_problem(tmp_path, capsys):

@@ -94,8 +94,9 @@ def load(path: Path) -> RunRecord:
 
 def export(uri: str, experiment: str, out: Path, max_points: int = MAX_POINTS,
            artifacts: tuple[str, ...] = ARTIFACTS) -> list[Path]:
-    """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id) with the artifacts whose path
-    matches one of the ``artifacts`` glob patterns; the files written."""
+    """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id: a run imported from a file of
+    ``out`` is that file's run) with the artifacts whose path matches one of the ``artifacts`` glob patterns; the
+    files written."""
     done = {load_meta(p)["run_id"] for p in out.glob("*.npz")} if out.exists() else set()
     written = []
     for record in read_finished_runs(uri, experiment, skip=done,

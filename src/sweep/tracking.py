@@ -189,8 +189,9 @@ ARCHIVED_FROM = "archived_from"  # tag of an imported run: the run id it was exp
 
 def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),
                        artifacts=lambda path: True) -> list[RunRecord]:
-    """The FINISHED runs of ``experiment`` (oldest first, run ids in ``skip`` left out), with every metric's
-    history and the artifacts whose path ``artifacts(path)`` accepts."""
+    """The FINISHED runs of ``experiment`` (oldest first), with every metric's history and the artifacts whose path
+    ``artifacts(path)`` accepts. Left out: the runs in ``skip``, by run id or, for a run imported from an archive,
+    by the run id it was exported from (its ``archived_from`` tag)."""
     client = MlflowClient(tracking_uri=uri)
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
@@ -199,7 +200,7 @@ def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),
                               order_by=["attributes.start_time ASC"])
     out = []
     for run in runs:
-        if run.info.run_id in skip:
+        if run.info.run_id in skip or run.data.tags.get(ARCHIVED_FROM) in skip:
             continue
         record = RunRecord(run.info.run_id, experiment, run.info.start_time, run.info.end_time,
                            dict(run.data.params), dict(run.data.tags))
