@@ -20,7 +20,8 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 REMEDIES = {"ppo": [], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
             "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
             "shrink_perturb": ["ShrinkPerturb"], "cbp_l2": ["L2Regularization", "ContinualBackprop"],
-            "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"], "ppo_target_kl": []}
+            "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"],
+            "l2_lr_decay_8m": ["L2Regularization"], "ppo_target_kl": []}
 
 
 def test_groups_exist():
@@ -80,6 +81,9 @@ INVALID = [
     ("eval.policy=worst", "eval.policy='worst': must be final|best|both"),
     ("wind.after_list=loop", "wind.after_list='loop': must be repeat|hold"),
     ("agent.ppo.target_kl=-1", "agent.ppo.target_kl=-1: must be a number > 0 or null (off)"),
+    ("agent.ppo.lr_decay_timesteps=0", "agent.ppo.lr_decay_timesteps=0: must be an integer > 0 or null"),
+    ("agent.ppo.lr_decay_timesteps=1000", "agent.ppo.lr_decay_timesteps=1000: must be null with "
+                                          "agent.ppo.lr_schedule=constant"),
     # no conversion: OmegaConf would read 'no' as false and '0.001' as a number, the run would not
     ("agent.policy.layer_norm=no", "agent.policy.layer_norm='no': must be true|false"),
     ("agent.ppo.learning_rate='0.001'", "agent.ppo.learning_rate='0.001': must be a number > 0"),
@@ -194,7 +198,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "1ca06bdc49c01c98"
+JOB_KEY = "51266123236daad1"   # agent.ppo.lr_decay_timesteps added
 
 
 def test_the_resume_key_changes_only_with_the_settings():

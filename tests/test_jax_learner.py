@@ -36,13 +36,13 @@ WEIGHT_ATOL = {None: 1e-5, "coupled": 1e-5, "decoupled": 5e-5}
 STAT_RTOL = 5e-6  # loss terms; pg loss and approx KL (near 0 by construction) are compared to 1e-6 absolute
 
 
-def pair(overrides=(), n_envs=8, n_steps=256, seed=0):
+def pair(overrides=(), n_envs=8, n_steps=256, seed=0, total_timesteps=None):
     """(sb3, jax) learners of the same config and seed, each on its own env with the same seed."""
     models = []
     for learner in ("sb3", "jax"):
         cfg = compose_cfg([f"agent.learner={learner}", f"agent.ppo.n_steps={n_steps}", *overrides])
         env = HoverVecEnv(n_envs=n_envs, seed=seed, wind=WindSchedule([3.0]))
-        model = build_learner(cfg.agent, env, seed)
+        model = build_learner(cfg.agent, env, seed, total_timesteps)
         for remedy in build_remedies(cfg.agent):
             remedy.init_callback(model)
         models.append(model)

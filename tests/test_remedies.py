@@ -184,6 +184,9 @@ def test_lr_schedules(kind):
     mid = {"constant": 3e-4, "linear": 1.65e-4, "cosine": 3e-5 + 2.7e-4 * 0.5 * (1 + math.cos(math.pi * 0.5))}
     assert s(0.5) == pytest.approx(mid[kind])
     assert s(-0.2) == s(0.0)   # SB3's last rollout can overshoot the total: never below the floor
+    early = LRSchedule(kind, 3e-4, 3e-5, until=0.4)   # the decay done by 40% of the run, the floor held after
+    assert early(1.0) == pytest.approx(3e-4) and early(0.8) == pytest.approx(s(0.5))
+    assert early(0.6) == early(0.3) == early(0.0) == pytest.approx(s(0.0))
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -194,6 +197,19 @@ def test_lr_schedule_reaches_the_update(name):
                                           train()))(model.train)
     model.learn(6144)
     assert seen == pytest.approx([3e-4 - 2.7e-4 / 3, 3e-4 - 2.7e-4 * 2 / 3, 3e-5], rel=1e-6)
+    assert model.logger.name_to_value["train/learning_rate"] == pytest.approx(3e-5)
+
+
+@pytest.mark.parametrize("name", LEARNERS)
+def test_lr_decay_timesteps_reaches_the_floor_early_on_both_learners(name):
+    """agent.ppo.lr_decay_timesteps (l2_lr_decay_8m's key): the decay ends at that timestep, the floor is held."""
+    overrides = ["agent=l2_lr_decay", "agent.ppo.lr_decay_timesteps=4096"]
+    model = dict(zip(LEARNERS, pair(overrides, total_timesteps=8192)))[name]   # rollouts of 2048 steps
+    seen = []
+    model.train = (lambda train: lambda: (seen.append(model.lr_schedule(model._current_progress_remaining)),
+                                          train()))(model.train)
+    model.learn(8192)
+    assert seen == pytest.approx([3e-4 - 2.7e-4 / 2, 3e-5, 3e-5, 3e-5], rel=1e-6)
     assert model.logger.name_to_value["train/learning_rate"] == pytest.approx(3e-5)
 
 

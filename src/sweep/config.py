@@ -210,6 +210,7 @@ class PPO:
     target_kl: Optional[float] = key(lambda v: v is None or (_finite(v) and v > 0), "a number > 0 or null (off)")
     lr_schedule: LRSchedule = MISSING
     lr_floor: float = non_negative()
+    lr_decay_timesteps: Optional[int] = key(lambda v: v is None or v > 0, "an integer > 0 or null (the whole run)")
 
 
 @dataclass
@@ -435,6 +436,9 @@ def _cross_rules(c: DictConfig) -> None:
     if a.recom.enabled and a.ppo.lr_schedule.value != "constant":
         raise ConfigError(f"agent.ppo.lr_schedule={a.ppo.lr_schedule.value!r}: must be constant with "
                           "agent.recom.enabled=True (RECOM sets the learning rate itself)")
+    if a.ppo.lr_decay_timesteps is not None and a.ppo.lr_schedule.value == "constant":
+        raise ConfigError(f"agent.ppo.lr_decay_timesteps={a.ppo.lr_decay_timesteps!r}: must be null with "
+                          "agent.ppo.lr_schedule=constant (it is when a linear|cosine decay reaches lr_floor)")
     rollout, batch = a.ppo.n_steps * c.env.n_envs, a.ppo.batch_size
     if batch > rollout:
         raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be <= the rollout size "

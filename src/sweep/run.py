@@ -98,7 +98,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     state = load_checkpoint(record.checkpoint) if previous else None
 
     env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True)
-    model = build_learner(cfg.agent, env, cfg.seed)
+    model = build_learner(cfg.agent, env, cfg.seed, cfg.train.total_timesteps)
     callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics.from_config(cfg.plasticity), EnvMonitor()]
     probe = PlasticityProbe(**cfg.plasticity.probe, activation=cfg.agent.policy.activation, seed=cfg.seed) \
         if cfg.plasticity.probe.steps > 0 else None

@@ -1,12 +1,15 @@
 """Learning-rate schedules (``agent.ppo.lr_schedule``): a control, not a remedy.
 
 A remedy that keeps the policy learning must beat plain annealing; these give PPO the same LR path without
-any plasticity mechanism. With p = SB3's ``progress_remaining`` (1 at the start of training, 0 at the end) and
-lr_0 = ``agent.ppo.learning_rate``:
+any plasticity mechanism. With p = SB3's ``progress_remaining`` (1 at the start of training, 0 at the end),
+lr_0 = ``agent.ppo.learning_rate`` and u = ``until``, the share of training by whose end the decay is done
+(``agent.ppo.lr_decay_timesteps`` / ``train.total_timesteps``; 1 = the whole run), d = min((1 - p) / u, 1):
 
     constant   lr(p) = lr_0
-    linear     lr(p) = floor + (lr_0 - floor) * p
-    cosine     lr(p) = floor + (lr_0 - floor) * (1 + cos(pi * (1 - p))) / 2
+    linear     lr(p) = floor + (lr_0 - floor) * (1 - d)
+    cosine     lr(p) = floor + (lr_0 - floor) * (1 + cos(pi * d)) / 2
+
+and lr = floor once d = 1 (held to the end of the run).
 
 p is clamped to [0, 1]: SB3's last rollout may end past ``total_timesteps`` (p < 0), which would otherwise
 extrapolate below the floor. A resumed run continues the same curve (SB3 counts progress over the whole ``train.total_timesteps``).
@@ -22,11 +25,12 @@ class LRSchedule:
     kind: str
     initial: float
     floor: float = 0.0
+    until: float = 1.0
 
     def __call__(self, progress_remaining: float) -> float:
         if self.kind == "constant":
             return self.initial
         progress_remaining = min(max(progress_remaining, 0.0), 1.0)  # SB3's last rollout may overshoot the total
-        done = 1.0 - progress_remaining
-        shape = progress_remaining if self.kind == "linear" else 0.5 * (1.0 + math.cos(math.pi * done))
+        done = min((1.0 - progress_remaining) / self.until, 1.0)
+        shape = 1.0 - done if self.kind == "linear" else 0.5 * (1.0 + math.cos(math.pi * done))
         return self.floor + (self.initial - self.floor) * shape
