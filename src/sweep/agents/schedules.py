@@ -3,13 +3,14 @@
 A remedy that keeps the policy learning must beat plain annealing; these give PPO the same LR path without
 any plasticity mechanism. With p = SB3's ``progress_remaining`` (1 at the start of training, 0 at the end),
 lr_0 = ``agent.ppo.learning_rate`` and u = ``until``, the share of training by whose end the decay is done
-(``agent.ppo.lr_decay_timesteps`` / ``train.total_timesteps``; 1 = the whole run), d = min((1 - p) / u, 1):
+(``agent.ppo.lr_decay_timesteps`` / ``train.total_timesteps``; 1 = the whole run), r = max((p - (1 - u)) / u, 0)
+the share of the decay still ahead (r = p for u = 1):
 
     constant   lr(p) = lr_0
-    linear     lr(p) = floor + (lr_0 - floor) * (1 - d)
-    cosine     lr(p) = floor + (lr_0 - floor) * (1 + cos(pi * d)) / 2
+    linear     lr(p) = floor + (lr_0 - floor) * r
+    cosine     lr(p) = floor + (lr_0 - floor) * (1 + cos(pi * (1 - r))) / 2
 
-and lr = floor once d = 1 (held to the end of the run).
+so lr = floor from the timestep the decay ends to the end of the run.
 
 p is clamped to [0, 1]: SB3's last rollout may end past ``total_timesteps`` (p < 0), which would otherwise
 extrapolate below the floor. A resumed run continues the same curve (SB3 counts progress over the whole ``train.total_timesteps``).
@@ -31,6 +32,7 @@ class LRSchedule:
         if self.kind == "constant":
             return self.initial
         progress_remaining = min(max(progress_remaining, 0.0), 1.0)  # SB3's last rollout may overshoot the total
-        done = min((1.0 - progress_remaining) / self.until, 1.0)
-        shape = 1.0 - done if self.kind == "linear" else 0.5 * (1.0 + math.cos(math.pi * done))
+        # the share of the decay still ahead: progress_remaining itself when the decay spans the run (until = 1)
+        remaining = max((progress_remaining - (1.0 - self.until)) / self.until, 0.0)
+        shape = remaining if self.kind == "linear" else 0.5 * (1.0 + math.cos(math.pi * (1.0 - remaining)))
         return self.floor + (self.initial - self.floor) * shape
