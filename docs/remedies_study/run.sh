@@ -4,7 +4,8 @@
 #   docs/remedies_study/run.sh import        # the finished runs carried in docs/remedies_study/runs -> the store
 #   docs/remedies_study/run.sh equivalence   # SB3 vs JAX: PPO, 16 x 128, 20 seeds each, 500k steps
 #   docs/remedies_study/run.sh pilot         # every agent, 3 seeds, 6M steps
-#   docs/remedies_study/run.sh main          # experiment=remedies: 11 agents x 8 seeds x 20M, wind paper
+#   docs/remedies_study/run.sh main          # experiment=remedies: the 11 planned agents x 8 seeds x 20M, wind paper
+#   docs/remedies_study/run.sh control       # the control added after main's first seeds: l2_lr_decay_8m, 8 seeds
 #   docs/remedies_study/run.sh none          # PPO and the 3 best agents, wind none (AGENTS_NONE)
 #   docs/remedies_study/run.sh fast          # PPO and the 4 best agents, 16 envs x 128 steps (AGENTS_FAST)
 #   docs/remedies_study/run.sh export        # new FINISHED runs -> docs/remedies_study/runs (commit them)
@@ -17,13 +18,16 @@
 # from a worktree there ($STUDY/code-<commit>), because a job's key hashes its config: the same commit and the
 # same $STUDY find the same jobs, and so do the runs imported from the archive. The equivalence and the pilot ran
 # at PILOT_COMMIT (diagnostics every rollout); main, none and fast at MAIN_COMMIT, whose experiment=remedies
-# computes the diagnostics every 10 rollouts (the run itself unchanged: tests/test_plasticity.py).
+# computes the diagnostics every 10 rollouts (the run itself unchanged: tests/test_plasticity.py); the control
+# l2_lr_decay_8m at CONTROL_COMMIT, the first with its key (agent.ppo.lr_decay_timesteps; otherwise MAIN_COMMIT's
+# training code, the other agents' LR schedules bitwise unchanged).
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/remedies}
 PILOT_COMMIT=fce62f7
 MAIN_COMMIT=88620f6
+CONTROL_COMMIT=4160b3b
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/remedies_study/runs
 AGENTS_NONE=${AGENTS_NONE:-}   # set from the main phase's leaderboard, e.g. ppo,a,b,c
@@ -47,6 +51,7 @@ case ${1:-} in
                  eval.every_timesteps=0 tracking.experiment=equivalence-20 ;;
   pilot)       sweep $PILOT_COMMIT pilot experiment=remedies train.total_timesteps=6000000 seed=0,1,2 tracking.experiment=remedies-pilot ;;
   main)        sweep $MAIN_COMMIT main experiment=remedies ;;
+  control)     sweep $CONTROL_COMMIT control experiment=remedies agent=l2_lr_decay_8m ;;
   none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" ;;
   fast)        need AGENTS_FAST "$AGENTS_FAST"
                sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ;;
@@ -58,10 +63,10 @@ case ${1:-} in
                   --by agent.learner --baseline agent.learner=sb3 --at 100000,250000,500000)
                (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies-pilot --out "$out/pilot")
                (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/main" --by env.n_envs \
-                  --baseline agent=ppo --vs ppo,l2_lr_decay,ppo_target_kl)
+                  --baseline agent=ppo --vs ppo,l2_lr_decay,l2_lr_decay_8m,ppo_target_kl)
                if [ -n "$AGENTS_TOP" ]; then  # curves of the top agents against PPO
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/top" --by env.n_envs \
                     --baseline agent=ppo --agents "$AGENTS_TOP")
                fi ;;
-  *) sed -n 2,11p "$0"; exit 2 ;;
+  *) sed -n 2,12p "$0"; exit 2 ;;
 esac
