@@ -33,7 +33,7 @@ ARCHIVE=$ROOT/docs/remedies_study/runs
 AGENTS_NONE=${AGENTS_NONE:-}   # set from the main phase's leaderboard, e.g. ppo,a,b,c
 AGENTS_FAST=${AGENTS_FAST:-}   # e.g. ppo,a,b,c,d
 AGENTS_TOP=${AGENTS_TOP:-}     # report: the agents whose curves are drawn against PPO's, e.g. ppo,a,b,c
-SEEDS=${SEEDS:-0,1,2,3,4,5,6,7} # none/fast: the seeds to run now (e.g. 0,1,2,3,4 in one session, the rest in the next)
+SEEDS=${SEEDS:-}               # none/fast: only these seeds now, e.g. 0,1,2 (unset: the preset's seeds 0-7)
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 
 mkdir -p "$STUDY"
@@ -53,9 +53,9 @@ case ${1:-} in
   pilot)       sweep $PILOT_COMMIT pilot experiment=remedies train.total_timesteps=6000000 seed=0,1,2 tracking.experiment=remedies-pilot ;;
   main)        sweep $MAIN_COMMIT main experiment=remedies ;;
   control)     sweep $CONTROL_COMMIT control experiment=remedies agent=l2_lr_decay_8m ;;
-  none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" "seed=$SEEDS" ;;
+  none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" ${SEEDS:+"seed=$SEEDS"} ;;
   fast)        need AGENTS_FAST "$AGENTS_FAST"
-               sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" "seed=$SEEDS" ;;
+               sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ${SEEDS:+"seed=$SEEDS"} ;;
   export)      for exp in equivalence-20 remedies-pilot remedies; do
                  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                done ;;
