@@ -76,3 +76,26 @@ def test_writer_buffers_dumps_until_flush_and_drops_replayed_steps(store):
         writer.flush()
         assert history() == [(5, -5.0), (6, -6.0)]
         assert tracked.client.get_metric_history(tracked.run_id, "time/iterations") == []
+
+
+def test_a_reader_of_the_sqlite_store_does_not_block_a_jobs_write(store):
+    """A study job died on "database is locked" while a sqlite3 shell read its store: WAL mode lets both run."""
+    import sqlite3
+    import time
+
+    from sweep.tracking import ensure_store
+
+    exp_id = ensure_store(store, "reader")
+    client = MlflowClient(store)
+    run_id = client.create_run(exp_id).info.run_id
+    reader = sqlite3.connect(store[len("sqlite:///"):], isolation_level=None)
+    try:
+        assert reader.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        reader.execute("BEGIN")
+        reader.execute("SELECT count(*) FROM metrics").fetchone()  # the reader now holds its read transaction
+        start = time.monotonic()
+        client.log_metric(run_id, "rollout/ep_rew_mean", -1.0, step=0)  # rollback-journal mode: fails after ~20 s
+        assert time.monotonic() - start < 5
+    finally:
+        reader.close()
+    assert [m.value for m in client.get_metric_history(run_id, "rollout/ep_rew_mean")] == [-1.0]

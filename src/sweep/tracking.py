@@ -3,7 +3,9 @@
 * Store: ``tracking.uri`` if set, else ``$MLFLOW_TRACKING_URI``, else ``sqlite:///<project root>/mlflow.db``
   (absolute), which a bare ``mlflow ui`` started in the project root opens.
 * The store's schema is created once in the parent process (``SweepCallback``, a Hydra callback that
-  runs before the launcher starts jobs): several processes creating a fresh SQLite store race.
+  runs before the launcher starts jobs): several processes creating a fresh SQLite store race. A SQLite
+  store is switched to write-ahead logging there, so a reader (``mlflow ui``, a report, a ``sqlite3`` shell)
+  never makes a job's write fail with "database is locked".
 * ``MlflowWriter`` is an SB3 ``KVWriter``: logger dumps are written in ``log_batch``es (every
   ``tracking.flush_every_s`` seconds) with step = environment timesteps and SB3's own metric names
   (``rollout/ep_rew_mean``, ``train/loss``, ...).
@@ -17,6 +19,7 @@ import logging
 import math
 import numbers
 import os
+import sqlite3
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -57,8 +60,33 @@ EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 UI_ADDRESS = "http://127.0.0.1:5000"
 
 
+def use_write_ahead_log(uri: str) -> None:
+    """Put a SQLite store in WAL mode (persistent, in the file): readers no longer block the jobs' writes.
+
+    In SQLite's default rollback-journal mode a reader's open transaction holds a lock that makes every
+    write wait, and MLflow's write fails with "database is locked" after ~20 s (a study job was lost this
+    way to a ``sqlite3`` read of its store). With WAL, readers and the one writer at a time do not block
+    each other. Not for a store on a network file system (WAL needs shared memory; README: one machine).
+    """
+    if not uri.startswith("sqlite:///"):
+        return
+    try:
+        con = sqlite3.connect(uri[len("sqlite:///"):], timeout=30)
+        try:
+            mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        finally:
+            con.close()
+        if mode != "wal":
+            log.warning("SQLite store %s stays in journal mode %s (not WAL)", uri, mode)
+    except sqlite3.Error as err:  # a busy store keeps its mode; the jobs still run, as before
+        log.warning("SQLite store %s not switched to WAL: %s", uri, err)
+
+
 def ensure_store(uri: str, experiment: str) -> str:
-    """Create the store's schema and the experiment if missing (tagged as model training); return its id."""
+    """Create the store's schema and the experiment if missing (tagged as model training); return its id.
+
+    A SQLite store is also put in WAL mode (``use_write_ahead_log``).
+    """
     client = MlflowClient(tracking_uri=uri)
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
@@ -70,6 +98,7 @@ def ensure_store(uri: str, experiment: str) -> str:
         exp_id = exp.experiment_id
         if exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND["mlflow.experimentKind"]:
             client.set_experiment_tag(exp_id, *next(iter(EXPERIMENT_KIND.items())))
+    use_write_ahead_log(uri)
     return exp_id
 
 
