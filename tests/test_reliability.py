@@ -186,3 +186,21 @@ def test_slurm_preset_composes(tmp_path, monkeypatch):
     # more runs than array_parallelism: at most 32 at once
     slurm.parameters["map_count"] = 40
     assert "#SBATCH --array=0-39%32" in slurm._make_submission_file_text("cmd", "uid").splitlines()
+
+
+def test_sweep_summary_counts_only_the_job_dirs_this_sweep_wrote(tmp_path, capsys):
+    """A sweep re-invoked in the same dir with fewer jobs: the earlier invocation's killed job is not this one's."""
+    from sweep.status import report_sweep, write_status
+
+    sweep = tmp_path / "sweep"
+    for job, status in (("0", "FINISHED"), ("1", "RUNNING")):  # the earlier invocation: job 1 killed mid-run
+        (sweep / job / ".hydra").mkdir(parents=True)
+        write_status(sweep / job, status, overrides=[f"seed={job}"])
+    old = time.time() - 3600
+    os.utime(sweep / "1" / ".hydra", (old, old))
+    report_sweep(sweep, "sqlite:///x.db", "mlflow ui", since=time.time() - 60)   # this one re-ran job 0 alone
+    out = capsys.readouterr().out
+    assert "1/1 jobs finished" in out and "1 job dirs of an earlier sweep in this dir not counted (1)" in out
+    with pytest.raises(SystemExit):  # without the sweep's start every dir counts, the stale RUNNING too
+        report_sweep(sweep, "sqlite:///x.db", "mlflow ui")
+    assert "1/2 jobs finished" in capsys.readouterr().out

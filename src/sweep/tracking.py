@@ -337,6 +337,7 @@ class SweepCallback(Callback):
         self._prepare(config)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self.started = time.time() - 1.0  # jobs of this sweep write their dirs after this (report_sweep's `since`)
         self._prepare(config)
         try:
             from sweep.plan import announce
@@ -352,7 +353,8 @@ class SweepCallback(Callback):
         from sweep.status import report_sweep
 
         uri = tracking_uri(config.tracking.uri)
-        report_sweep(Path(config.hydra.sweep.dir), uri, ui_command(uri), experiment_url(uri, config.tracking.experiment))
+        report_sweep(Path(config.hydra.sweep.dir), uri, ui_command(uri), experiment_url(uri, config.tracking.experiment),
+                     since=getattr(self, "started", None))
 
     def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
         uri = tracking_uri(config.tracking.uri)
