@@ -1,6 +1,8 @@
 """Real Hydra multiruns through the joblib launcher into one fresh MLflow store."""
 from __future__ import annotations
 
+import sqlite3
+
 from mlflow.tracking import MlflowClient
 
 from conftest import ROOT, TINY, run_cli
@@ -29,6 +31,8 @@ def test_two_job_multirun_writes_two_runs_into_one_fresh_store(tmp_path):
         winds = [m.value for m in client.get_metric_history(r.info.run_id, "env/wind_speed")]
         assert winds == [2.0, 2.5]  # global steps 512 and 1024 with 512-step segments
     assert "2/2 jobs finished" in proc.stdout
+    # the sweep put its SQLite store in WAL mode (a reader no longer blocks the jobs' writes)
+    assert sqlite3.connect(tmp_path / "fresh.db").execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     # the start announces the sweep's size and expected time; the end links the runs table of a
     # model-training experiment (MLflow 3 would otherwise open its GenAI overview)
     assert "sweep: 2 jobs, expected wall time ~" in proc.stdout and "agent.learner=jax" in proc.stdout

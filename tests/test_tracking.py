@@ -1,6 +1,8 @@
 """Real runs into a real temporary MLflow store: tags, metric histories, artifacts, failure status."""
 from __future__ import annotations
 
+import sqlite3
+import time
 from pathlib import Path
 
 import pytest
@@ -8,7 +10,7 @@ from mlflow.tracking import MlflowClient
 
 from conftest import TINY, compose_cfg
 from sweep.run import run
-from sweep.tracking import MlflowWriter, TrackedRun, flatten, tracking_uri
+from sweep.tracking import MlflowWriter, TrackedRun, ensure_store, flatten, tracking_uri, use_write_ahead_log
 
 
 def all_runs(uri: str):
@@ -80,12 +82,8 @@ def test_writer_buffers_dumps_until_flush_and_drops_replayed_steps(store):
 
 def test_a_reader_of_the_sqlite_store_does_not_block_a_jobs_write(store):
     """A study job died on "database is locked" while a sqlite3 shell read its store: WAL mode lets both run."""
-    import sqlite3
-    import time
-
-    from sweep.tracking import ensure_store
-
     exp_id = ensure_store(store, "reader")
+    use_write_ahead_log(store)  # as the sweep's callback does before its jobs start
     client = MlflowClient(store)
     run_id = client.create_run(exp_id).info.run_id
     reader = sqlite3.connect(store[len("sqlite:///"):], isolation_level=None)

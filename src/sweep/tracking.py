@@ -44,13 +44,17 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 BATCH_LIMIT = 1000  # MLflow accepts at most 1000 metrics / 100 params per log_batch
 
 
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a ``sqlite:///`` store URI; None for any other store."""
+    return Path(uri[len("sqlite:///"):]) if uri.startswith("sqlite:///") else None
+
+
 def tracking_uri(uri: str | None = None) -> str:
     """The store every job of a sweep writes to (always absolute for SQLite)."""
     uri = uri or os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
-    if uri.startswith("sqlite:///") and not uri.startswith("sqlite:////"):
-        path = Path(uri[len("sqlite:///"):])
-        if not path.is_absolute():
-            uri = f"sqlite:///{path.resolve()}"
+    path = sqlite_path(uri)
+    if path is not None and not path.is_absolute():
+        uri = f"sqlite:///{path.resolve()}"
     return uri
 
 
@@ -68,10 +72,11 @@ def use_write_ahead_log(uri: str) -> None:
     way to a ``sqlite3`` read of its store). With WAL, readers and the one writer at a time do not block
     each other. Not for a store on a network file system (WAL needs shared memory; README: one machine).
     """
-    if not uri.startswith("sqlite:///"):
+    path = sqlite_path(uri)
+    if path is None:
         return
     try:
-        con = sqlite3.connect(uri[len("sqlite:///"):], timeout=30)
+        con = sqlite3.connect(path, timeout=30)
         try:
             mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
         finally:
@@ -83,10 +88,7 @@ def use_write_ahead_log(uri: str) -> None:
 
 
 def ensure_store(uri: str, experiment: str) -> str:
-    """Create the store's schema and the experiment if missing (tagged as model training); return its id.
-
-    A SQLite store is also put in WAL mode (``use_write_ahead_log``).
-    """
+    """Create the store's schema and the experiment if missing (tagged as model training); return its id."""
     client = MlflowClient(tracking_uri=uri)
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
@@ -98,7 +100,6 @@ def ensure_store(uri: str, experiment: str) -> str:
         exp_id = exp.experiment_id
         if exp.tags.get("mlflow.experimentKind") != EXPERIMENT_KIND["mlflow.experimentKind"]:
             client.set_experiment_tag(exp_id, *next(iter(EXPERIMENT_KIND.items())))
-    use_write_ahead_log(uri)
     return exp_id
 
 
@@ -329,15 +330,18 @@ class MlflowWriter(KVWriter):
 class SweepCallback(Callback):
     """Hydra callback (parent process): create the store before jobs start; say where results are."""
 
+    started: float | None = None  # the multirun's start, epoch seconds (report_sweep's `since`)
+
     def _prepare(self, config: DictConfig) -> None:
         uri = tracking_uri(config.tracking.uri)
         ensure_store(uri, config.tracking.experiment)
+        use_write_ahead_log(uri)  # once, here, before any job opens the store
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._prepare(config)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        self.started = time.time() - 1.0  # jobs of this sweep write their dirs after this (report_sweep's `since`)
+        self.started = time.time() - 1.0  # jobs of this sweep write their dirs after this
         self._prepare(config)
         try:
             from sweep.plan import announce
@@ -354,7 +358,7 @@ class SweepCallback(Callback):
 
         uri = tracking_uri(config.tracking.uri)
         report_sweep(Path(config.hydra.sweep.dir), uri, ui_command(uri), experiment_url(uri, config.tracking.experiment),
-                     since=getattr(self, "started", None))
+                     since=self.started)
 
     def on_run_end(self, config: DictConfig, **kwargs: Any) -> None:
         uri = tracking_uri(config.tracking.uri)
