@@ -30,7 +30,8 @@ def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monke
     monkeypatch.setenv("MLFLOW_TRACKING_URI", source)
     original_id = run(compose_cfg(overrides), tmp_path / "job_a")
 
-    written = export(source, EXP, tmp_path / "archive", max_points=2)
+    assert export(source, EXP, tmp_path / "archive", where={"wind": "none"}) == []  # --where: no such run
+    written = export(source, EXP, tmp_path / "archive", max_points=2, where={"seed": "4", "agent.l2.enabled": "True"})
     assert len(written) == 1 and export(source, EXP, tmp_path / "archive") == []  # each run once
     assert load(written[0]).run_id == original_id
     (tmp_path / "archive" / "sub").mkdir()  # import searches directories recursively

@@ -8,7 +8,9 @@
 #   docs/remedies_study/run.sh control       # the control added after main's first seeds: l2_lr_decay_8m, 8 seeds
 #   docs/remedies_study/run.sh none          # PPO and the 3 best agents, wind none (AGENTS_NONE)
 #   docs/remedies_study/run.sh fast          # PPO and the 4 best agents, 16 envs x 128 steps (AGENTS_FAST)
-#   docs/remedies_study/run.sh export        # new FINISHED runs -> docs/remedies_study/runs (commit them)
+#   docs/remedies_study/run.sh export        # new FINISHED runs -> docs/remedies_study/runs (commit them; the wind-none
+#                                            # runs with their models, for still-air)
+#   docs/remedies_study/run.sh still-air     # the wind-none runs' stored policies flown in still air (sweep.reevaluate)
 #   docs/remedies_study/run.sh report        # every table and figure of docs/remedies_study.md (AGENTS_TOP=ppo,a,b,c:
 #                                            # also the curves of those agents alone, in remedies_study/top)
 #
@@ -56,7 +58,9 @@ case ${1:-} in
   none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" ${SEEDS:+"seed=$SEEDS"} ;;
   fast)        need AGENTS_FAST "$AGENTS_FAST"
                sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ${SEEDS:+"seed=$SEEDS"} ;;
-  export)      for exp in equivalence-20 remedies-pilot remedies; do
+  export)      (cd "$STUDY" && "$PY" -m sweep.archive export --experiment remedies --where wind=none \
+                  --artifacts 'config.yaml,eval_trajectories.npz,model*.zip' --out "$ARCHIVE/remedies")
+               for exp in equivalence-20 remedies-pilot remedies; do
                  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                done ;;
   report)      out=$ROOT/docs/remedies_study
@@ -69,5 +73,7 @@ case ${1:-} in
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/top" --by env.n_envs \
                     --baseline agent=ppo --agents "$AGENTS_TOP")
                fi ;;
-  *) sed -n 2,12p "$0"; exit 2 ;;
+  still-air)   (cd "$STUDY" && "$PY" -m sweep.reevaluate --experiment remedies --where wind=none --name still_air \
+                  --out "$ROOT/docs/remedies_study/none/still_air.md" eval.wind_speed=0) ;;
+  *) sed -n 2,15p "$0"; exit 2 ;;
 esac

@@ -12,6 +12,7 @@ only what is missing.
 
     python -m sweep.archive export --experiment remedies --out docs/remedies_study/runs
     python -m sweep.archive import docs/remedies_study/runs          # into $MLFLOW_TRACKING_URI
+    python -m sweep.archive export --experiment remedies --where wind=none --artifacts 'config.yaml,eval_*,model*' --out ...
 
 What thinning changes: ``sweep.report`` draws curves on a 200-point grid and takes a curve's final value as
 the mean over its last 10% of timesteps; from a 20M-step run thinned to 400 points per key that mean is over
@@ -32,7 +33,8 @@ from omegaconf import OmegaConf
 
 from sweep.checkpoint import JobRecord
 from sweep.run import own_job_record
-from sweep.tracking import RunRecord, archived_run_ids, read_finished_runs, tracking_uri, write_finished_run
+from sweep.tracking import (RunRecord, archived_run_ids, parse_where, read_finished_runs, tracking_uri,
+                            write_finished_run)
 
 MAX_POINTS = 400
 CONFIG = "config.yaml"
@@ -93,13 +95,13 @@ def load(path: Path) -> RunRecord:
 
 
 def export(uri: str, experiment: str, out: Path, max_points: int = MAX_POINTS,
-           artifacts: tuple[str, ...] = ARTIFACTS) -> list[Path]:
-    """Write the experiment's FINISHED runs not yet in ``out`` (by exported run id: a run imported from a file of
-    ``out`` is that file's run) with the artifacts whose path matches one of the ``artifacts`` glob patterns; the
-    files written."""
+           artifacts: tuple[str, ...] = ARTIFACTS, where: dict[str, str] | None = None) -> list[Path]:
+    """Write the experiment's FINISHED runs matching ``where`` (tracking.run_matches) not yet in ``out`` (by
+    exported run id: a run imported from a file of ``out`` is that file's run) with the artifacts whose path
+    matches one of the ``artifacts`` glob patterns; the files written."""
     done = {load_meta(p)["run_id"] for p in out.glob("*.npz")} if out.exists() else set()
     written = []
-    for record in read_finished_runs(uri, experiment, skip=done,
+    for record in read_finished_runs(uri, experiment, skip=done, where=where,
                                      artifacts=lambda path: any(fnmatch(path, p) for p in artifacts)):
         path = out / file_name(record)
         save(record, path, max_points)
@@ -159,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--max-points", type=int, default=MAX_POINTS, help="per metric key (default %(default)s)")
     ex.add_argument("--artifacts", default=",".join(ARTIFACTS), type=lambda s: tuple(x for x in s.split(",") if x),
                     help="glob patterns of the artifacts to keep (default %(default)s; '*' keeps all, models too)")
+    ex.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
+                    help="only runs with this tag (agent, wind, seed) or param, e.g. wind=none; repeatable")
     im = sub.add_parser("import", help="create the archived runs in the store (each once)")
     im.add_argument("paths", nargs="+", help=".npz files or directories of them")
     im.add_argument("--experiment", help="import into this experiment (default: each run's own)")
@@ -170,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "export":
             if args.max_points < 2:
                 raise ValueError(f"--max-points {args.max_points}: must be at least 2 (the first and the last point)")
-            written = export(uri, args.experiment, args.out, args.max_points, args.artifacts)
+            written = export(uri, args.experiment, args.out, args.max_points, args.artifacts,
+                             parse_where(args.where))
             print(f"archive: {len(written)} run(s) of {args.experiment!r} written to {args.out}")
         else:
             created, present = import_(archive_files(args.paths), uri, args.experiment)

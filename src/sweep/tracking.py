@@ -11,6 +11,8 @@
   (``rollout/ep_rew_mean``, ``train/loss``, ...).
 * ``read_finished_runs`` / ``write_finished_run``: a finished run as a plain ``RunRecord`` and back, for the
   study archives of ``sweep.archive`` (a long study carried from one machine's store to another's).
+* ``finished_runs`` / ``download_artifact`` / ``add_to_finished_run``: a finished run's stored policies read and
+  scores added to it, for ``sweep.reevaluate``.
 """
 from __future__ import annotations
 
@@ -217,20 +219,36 @@ class RunRecord:
 ARCHIVED_FROM = "archived_from"  # tag of an imported run: the run id it was exported from
 
 
+WHERE_TAGS = ("agent", "wind", "seed")  # what a ``where`` key names in a run's tags; any other key, a param
+
+
+def parse_where(items: list[str]) -> dict[str, str]:
+    """``["wind=none", "agent.ppo.lr=0.0003"]`` -> {key: value} (ValueError naming a malformed item)."""
+    where = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--where {item!r}: expected KEY=VALUE, e.g. wind=none or agent.ppo.lr=0.0003")
+        where[key] = value
+    return where
+
+
+def run_matches(params: dict[str, str], tags: dict[str, str], where: dict[str, str]) -> bool:
+    """Whether a run has every ``where`` value: tag ``agent``/``wind``/``seed``, else the flattened config param."""
+    return all((tags if key in WHERE_TAGS else params).get(key) == value for key, value in where.items())
+
+
 def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),
-                       artifacts=lambda path: True) -> list[RunRecord]:
-    """The FINISHED runs of ``experiment`` (oldest first), with every metric's history and the artifacts whose path
-    ``artifacts(path)`` accepts. Left out: the runs in ``skip``, by run id or, for a run imported from an archive,
-    by the run id it was exported from (its ``archived_from`` tag)."""
+                       artifacts=lambda path: True, where: dict[str, str] | None = None) -> list[RunRecord]:
+    """The FINISHED runs of ``experiment`` (oldest first) that match ``where`` (``run_matches``), with every
+    metric's history and the artifacts whose path ``artifacts(path)`` accepts. Left out: the runs in ``skip``, by
+    run id or, for a run imported from an archive, by the run id it was exported from (its ``archived_from`` tag)."""
     client = MlflowClient(tracking_uri=uri)
-    exp = client.get_experiment_by_name(experiment)
-    if exp is None:
-        raise ValueError(f"no experiment {experiment!r} in {uri}; it has: {', '.join(experiment_names(uri)) or 'none'}")
-    runs = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'", max_results=50000,
-                              order_by=["attributes.start_time ASC"])
     out = []
-    for run in runs:
+    for run in _finished(client, uri, experiment):
         if run.info.run_id in skip or run.data.tags.get(ARCHIVED_FROM) in skip:
+            continue
+        if not run_matches(run.data.params, run.data.tags, where or {}):
             continue
         record = RunRecord(run.info.run_id, experiment, run.info.start_time, run.info.end_time,
                            dict(run.data.params), dict(run.data.tags))
@@ -287,6 +305,39 @@ def write_finished_run(uri: str, record: RunRecord, experiment: str | None = Non
             client.log_artifact(run_id, str(local), str(Path(path).parent) if Path(path).parent != Path(".") else None)
     client.set_terminated(run_id, status="FINISHED", end_time=record.end_time)
     return run_id
+
+
+def finished_runs(uri: str, experiment: str) -> list[tuple[str, dict[str, str], dict[str, str]]]:
+    """(run id, params, tags) of every FINISHED run of ``experiment``, oldest first."""
+    return [(r.info.run_id, dict(r.data.params), dict(r.data.tags))
+            for r in _finished(MlflowClient(tracking_uri=uri), uri, experiment)]
+
+
+def _finished(client: MlflowClient, uri: str, experiment: str) -> list:
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise ValueError(f"no experiment {experiment!r} in {uri}; it has: {', '.join(experiment_names(uri)) or 'none'}")
+    return client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'", max_results=50000,
+                              order_by=["attributes.start_time ASC"])
+
+
+def download_artifact(uri: str, run_id: str, path: str, dst: Path) -> Path | None:
+    """The run's artifact ``path`` downloaded into ``dst``; None if the run has no such artifact."""
+    client = MlflowClient(tracking_uri=uri)
+    if path not in {a.path for a in client.list_artifacts(run_id, str(Path(path).parent) if "/" in path else None)}:
+        return None
+    return Path(client.download_artifacts(run_id, path, str(dst)))
+
+
+def add_to_finished_run(uri: str, run_id: str, metrics: dict[str, float], tags: dict[str, str],
+                        step_of: str) -> None:
+    """Log ``metrics`` to a finished run at the step of its latest ``step_of`` metric (0 if none) and set ``tags``;
+    the run keeps its status and times (a later reading of the run, e.g. ``sweep.reevaluate``)."""
+    client = MlflowClient(tracking_uri=uri)
+    step = max((m.step for m in client.get_metric_history(run_id, step_of)), default=0)
+    now = int(time.time() * 1000)
+    client.log_batch(run_id, metrics=[Metric(k, float(v), now, step) for k, v in metrics.items()],
+                     tags=[RunTag(k, v) for k, v in tags.items()])
 
 
 class MlflowWriter(KVWriter):

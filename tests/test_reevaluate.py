@@ -1,0 +1,103 @@
+"""Re-evaluation (``sweep.reevaluate``) of real tiny runs' stored policies: under another protocol it scores what a
+run evaluated under that protocol logged, under its own protocol what the run itself logged, on both learners;
+bad input fails before any flight with one line."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mlflow.tracking import MlflowClient
+
+from conftest import TINY, compose_cfg
+from sweep import metrics
+from sweep.archive import export, import_
+from sweep.reevaluate import main
+from sweep.run import run
+
+EXP = "recom-hover"  # conf/config.yaml tracking.experiment
+FIELDS = [f.name for f in metrics.EVAL_FIELDS]
+
+
+def logged(uri: str, run_id: str, prefix: str = "") -> dict[str, dict[str, float]]:
+    """{policy: {field: value}} of the policies the run scored under ``prefix`` (a tiny run keeps no best_eval)."""
+    data = MlflowClient(uri).get_run(run_id).data.metrics
+    return {p: {f: data[f"{prefix}{metrics.eval_key(p, f)}"] for f in FIELDS} for p in metrics.POLICIES
+            if f"{prefix}{metrics.eval_key(p, 'success_rate')}" in data}
+
+
+@pytest.fixture
+def in_tmp(tmp_path, monkeypatch, store):
+    monkeypatch.chdir(tmp_path)  # MLflow puts a SQLite store's artifacts under ./mlruns
+    return store
+
+
+def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tmp_path, capsys):
+    # Evaluation does not touch training: the same seed trained with eval.wind_speed 3 and 0 learns the same policy,
+    # so re-evaluating the first run in still air must give exactly what the second logged.
+    windy = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "a")
+    still = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", "eval.wind_speed=0", *TINY]), tmp_path / "b")
+    assert main(["--experiment", EXP, "--where", "seed=1", "--name", "still_air", "--out", str(tmp_path / "t.md"),
+                 "eval.wind_speed=0"]) == 0
+    again, target, before = logged(in_tmp, windy, "still_air/"), logged(in_tmp, still), logged(in_tmp, windy)
+    assert again == target and set(again) == {"final", "best"}
+    assert again["final"] != before["final"]  # the wind did change the flights (else the check above shows nothing)
+    client = MlflowClient(in_tmp)
+    run_info = client.get_run(windy)
+    assert run_info.info.status == "FINISHED" and run_info.data.tags["reeval.still_air"] == "eval.wind_speed=0"
+    assert logged(in_tmp, windy) == before  # the run's own evaluation is untouched
+    step = client.get_metric_history(windy, "still_air/eval/success_rate")[0].step
+    assert step == client.get_metric_history(windy, "eval/success_rate")[-1].step
+    out = capsys.readouterr().out
+    assert "| Agent | Seeds | Success final (%) (per seed) |" in out and "| PPO | 2 |" in out
+    assert (tmp_path / "t.md").read_text().startswith("# Re-evaluation 'still_air' (eval.wind_speed=0) of 2 run(s)")
+
+
+def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(in_tmp, tmp_path):
+    # The JAX learner stores its policy as an SB3 model, flown here with torch's forward pass instead of XLA's.
+    run_id = run(compose_cfg(["agent=layer_norm", "agent.learner=jax", "seed=2", "wind=paper", *TINY]),
+                 tmp_path / "a")
+    assert main(["--experiment", EXP, "--where", "agent=layer_norm", "--name", "again"]) == 0
+    again, own = logged(in_tmp, run_id, "again/"), logged(in_tmp, run_id)
+    assert set(again) == set(own) == {"final", "best"}
+    for policy in own:
+        assert again[policy]["success_rate"] == own[policy]["success_rate"]
+        assert again[policy]["crash_rate"] == own[policy]["crash_rate"]
+        np.testing.assert_allclose([again[policy][f] for f in FIELDS], [own[policy][f] for f in FIELDS],
+                                   rtol=1e-3, err_msg=policy)
+
+
+def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsys):
+    run_id = run(compose_cfg(["agent=ppo", "seed=0", "wind=paper", *TINY]), tmp_path / "a")
+    capsys.readouterr()
+    cases = [
+        (["agent.ppo.learning_rate=1"], "only eval.* overrides"),
+        (["eval.episodes=0"], "eval.episodes"),
+        (["--where", "seed=9"], "no FINISHED run of 'recom-hover' matches seed=9"),
+        (["--where", "nope=1"], "--where nope: no run of 'recom-hover' has that tag or param"),
+        (["--where", "seed"], "expected KEY=VALUE"),
+        (["--name", "eval_best"], "--name 'eval_best'"),
+    ]
+    for args, message in cases:
+        name = [] if "--name" in args else ["--name", "x"]
+        assert main(["--experiment", EXP, *name, *args]) == 2, args
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, (args, err)
+    assert not any(key.startswith("x/") for key in MlflowClient(in_tmp).get_run(run_id).data.metrics)
+
+
+def test_a_run_without_stored_models_is_skipped_and_named(in_tmp, tmp_path, capsys):
+    run(compose_cfg(["agent=ppo", "seed=3", "wind=paper", "tracking.log_model=false", *TINY]), tmp_path / "a")
+    assert main(["--experiment", EXP, "--name", "x"]) == 1
+    assert "skipped 1 run(s) without a stored config or model: ppo-paper-s3" in capsys.readouterr().err
+
+
+def test_a_run_archived_with_its_models_scores_the_same_after_import(in_tmp, tmp_path, monkeypatch):
+    # docs/remedies_study.md re-makes its still-air table from the archive: models exported, imported, flown.
+    run_id = run(compose_cfg(["agent=ppo", "seed=5", "wind=none", *TINY]), tmp_path / "a")
+    [path] = export(in_tmp, EXP, tmp_path / "archive", artifacts=("config.yaml", "model*"), where={"wind": "none"})
+    target = f"sqlite:///{tmp_path / 'b.db'}"
+    assert import_([path], target) == (1, 0)
+    for uri in (in_tmp, target):
+        assert main(["--experiment", EXP, "--uri", uri, "--name", "still_air", "eval.wind_speed=0"]) == 0
+    [copy] = [r.info.run_id for r in MlflowClient(target).search_runs(
+        [MlflowClient(target).get_experiment_by_name(EXP).experiment_id])]
+    assert logged(target, copy, "still_air/") == logged(in_tmp, run_id, "still_air/")
