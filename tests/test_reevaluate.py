@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from omegaconf import OmegaConf
 from mlflow.tracking import MlflowClient
 
 from conftest import TINY, compose_cfg
 from sweep import metrics
 from sweep.archive import export, import_
-from sweep.reevaluate import main
+from sweep.reevaluate import main, parse_overrides, run_config
 from sweep.run import run
 
 EXP = "recom-hover"  # conf/config.yaml tracking.experiment
@@ -101,3 +102,13 @@ def test_a_run_archived_with_its_models_scores_the_same_after_import(in_tmp, tmp
     [copy] = [r.info.run_id for r in MlflowClient(target).search_runs(
         [MlflowClient(target).get_experiment_by_name(EXP).experiment_id])]
     assert logged(target, copy, "still_air/") == logged(in_tmp, run_id, "still_air/")
+
+
+def test_a_run_whose_config_predates_a_newer_key_is_checked_on_eval_alone(tmp_path):
+    # The remedies study's wind-none runs were trained before agent.ppo.lr_decay_timesteps existed.
+    plain = OmegaConf.to_container(compose_cfg(TINY), resolve=True)
+    del plain["agent"]["ppo"]["lr_decay_timesteps"]
+    OmegaConf.save(OmegaConf.create(plain), tmp_path / "config.yaml")
+    assert run_config(tmp_path / "config.yaml", parse_overrides(["eval.wind_speed=0"])).eval.wind_speed == 0
+    with pytest.raises(ValueError, match=r"eval.wind_speed=-1: must be a number >= 0"):
+        run_config(tmp_path / "config.yaml", parse_overrides(["eval.wind_speed=-1"]))

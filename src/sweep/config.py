@@ -420,6 +420,13 @@ def validate(cfg: DictConfig) -> None:
     _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
 
 
+def validate_section(cfg: DictConfig, name: str) -> None:
+    """Raise ConfigError at the first invalid key of the top-level block ``name`` alone: e.g. the ``eval`` of a
+    finished run re-evaluated (``sweep.reevaluate``), whose config may predate keys added elsewhere since."""
+    spec = {f.name: f for f in fields(SweepConfig)}[name]
+    _check(OmegaConf.to_container(cfg[name], resolve=True), _hints(SweepConfig)[name], name, spec.metadata)
+
+
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent

@@ -35,7 +35,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3 import PPO
 
 from sweep import metrics
-from sweep.config import ConfigError, validate
+from sweep.config import ConfigError, validate_section
 from sweep.evaluate import evaluate
 from sweep.report.tables import markdown
 from sweep.tracking import (WHERE_TAGS, add_to_finished_run, download_artifact, finished_runs, parse_where,
@@ -70,9 +70,10 @@ def select(uri: str, experiment: str, where: dict[str, str]) -> list[tuple[str, 
 
 
 def run_config(stored: Path, overrides: DictConfig) -> DictConfig:
-    """The run's own config with the ``eval.*`` overrides, checked like a new run's (ConfigError)."""
+    """The run's own config with the ``eval.*`` overrides, its ``eval`` block checked like a new run's (ConfigError;
+    the rest is the run's as it trained, which may predate keys added since)."""
     cfg = OmegaConf.merge(OmegaConf.load(stored), overrides)
-    validate(cfg)
+    validate_section(cfg, "eval")
     return cfg
 
 
