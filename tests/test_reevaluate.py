@@ -4,14 +4,16 @@ bad input fails before any flight with one line."""
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
+from scipy import stats
 from omegaconf import OmegaConf
 from mlflow.tracking import MlflowClient
 
 from conftest import TINY, compose_cfg
 from sweep import metrics
 from sweep.archive import export, import_
-from sweep.reevaluate import main, parse_overrides, run_config
+from sweep.reevaluate import main, parse_overrides, run_config, table
 from sweep.run import run
 
 EXP = "recom-hover"  # conf/config.yaml tracking.experiment
@@ -37,7 +39,7 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     windy = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "a")
     still = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", "eval.wind_speed=0", *TINY]), tmp_path / "b")
     assert main(["--experiment", EXP, "--where", "seed=1", "--name", "still_air", "--out", str(tmp_path / "t.md"),
-                 "eval.wind_speed=0"]) == 0
+                 "--vs", "ppo", "eval.wind_speed=0"]) == 0
     again, target, before = logged(in_tmp, windy, "still_air/"), logged(in_tmp, still), logged(in_tmp, windy)
     assert again == target and set(again) == {"final", "best"}
     assert again["final"] != before["final"]  # the wind did change the flights (else the check above shows nothing)
@@ -48,7 +50,8 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     step = client.get_metric_history(windy, "still_air/eval/success_rate")[0].step
     assert step == client.get_metric_history(windy, "eval/success_rate")[-1].step
     out = capsys.readouterr().out
-    assert "| Agent | Seeds | Success final (%) (per seed) |" in out and "| PPO | 2 |" in out
+    assert "| Agent | Seeds | Success final (%) (per seed) | Success best (%) (per seed) | Δ final vs PPO (pp) |" in out
+    assert "| PPO | 2 |" in out
     assert (tmp_path / "t.md").read_text().startswith("# Re-evaluation 'still_air' (eval.wind_speed=0) of 2 run(s)")
 
 
@@ -76,6 +79,7 @@ def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsy
         (["--where", "nope=1"], "--where nope: no run of 'recom-hover' has that tag or param"),
         (["--where", "seed"], "expected KEY=VALUE"),
         (["--name", "eval_best"], "--name 'eval_best'"),
+        (["--vs", "l2"], "--vs l2: none of the selected runs is of that agent"),
     ]
     for args, message in cases:
         name = [] if "--name" in args else ["--name", "x"]
@@ -112,3 +116,16 @@ def test_a_run_whose_config_predates_a_newer_key_is_checked_on_eval_alone(tmp_pa
     assert run_config(tmp_path / "config.yaml", parse_overrides(["eval.wind_speed=0"])).eval.wind_speed == 0
     with pytest.raises(ValueError, match=r"eval.wind_speed=-1: must be a number >= 0"):
         run_config(tmp_path / "config.yaml", parse_overrides(["eval.wind_speed=-1"]))
+
+
+def test_the_table_gives_each_agent_its_seed_mean_ci_and_difference_to_the_baseline():
+    rows = pd.DataFrame({"agent": ["ppo"] * 3 + ["layer_norm"] * 3, "label": ["PPO"] * 3 + ["LayerNorm"] * 3,
+                         "seed": [2, 0, 1] * 2, "final_success_rate": [0.0, 0.0, 0.3, 1.0, 0.5, 0.9],
+                         "best_success_rate": [1.0, 0.0, 0.0, 1.0, 1.0, 1.0], "final_crash_rate": [1, 1, 0, 0, 0, 0]})
+    t = table(rows, vs="ppo").set_index("Agent")
+    assert list(t.index) == ["LayerNorm", "PPO"]
+    half = stats.t.ppf(0.975, 2) * stats.sem([50, 90, 100])
+    assert t.loc["LayerNorm", "Success final (%) (per seed)"] == f"80 ± {half:.0f} (50, 90, 100)"  # sorted by seed
+    assert t.loc["PPO", "Success best (%) (per seed)"].endswith("(0, 0, 100)")
+    assert t.loc["LayerNorm", "Δ final vs PPO (pp)"].startswith("70 [") and t.loc["PPO", "Δ final vs PPO (pp)"] == "–"
+    assert t.loc["PPO", "Crash final (%)"] == "67"

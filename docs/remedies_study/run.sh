@@ -73,7 +73,7 @@ case ${1:-} in
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment remedies --out "$out/top" --by env.n_envs \
                     --baseline agent=ppo --agents "$AGENTS_TOP")
                fi ;;
-  still-air)   (cd "$STUDY" && "$PY" -m sweep.reevaluate --experiment remedies --where wind=none --name still_air \
+  still-air)   (cd "$STUDY" && "$PY" -m sweep.reevaluate --experiment remedies --where wind=none --name still_air --vs ppo \
                   --out "$ROOT/docs/remedies_study/none/still_air.md" eval.wind_speed=0) ;;
   *) sed -n 2,15p "$0"; exit 2 ;;
 esac

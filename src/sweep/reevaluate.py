@@ -11,8 +11,9 @@ the run's own config and the ``eval.*`` overrides given, and
   ``still_air/eval_best/crash_rate``, ...: the ``sweep.metrics`` eval keys behind ``<name>/``) at the step of its
   final evaluation, with the overrides as the tag ``reeval.<name>`` (the run stays FINISHED, its other metrics
   untouched);
-* prints, and with ``--out`` writes as Markdown, one row per agent: seeds, each policy's success rate (seed mean,
-  then per seed in brackets) and the final policy's crash rate.
+* prints, and with ``--out`` writes as Markdown, one row per agent: seeds, each policy's success rate (seed mean ±
+  95% Student-t CI, then per seed in brackets), with ``--vs AGENT`` the difference of the final and best policies'
+  mean success to that agent's [95% bootstrap CI], and the final policy's crash rate.
 
 The stored policies are the run artifacts ``model.zip`` (final), ``model_best.zip`` and ``model_best_eval.zip``
 (``sweep.best_policy``), kept when ``tracking.log_model`` is true; a run without them (e.g. one imported from a
@@ -37,6 +38,7 @@ from stable_baselines3 import PPO
 from sweep import metrics
 from sweep.config import ConfigError, validate_section
 from sweep.evaluate import evaluate
+from sweep.report import stats
 from sweep.report.tables import markdown
 from sweep.tracking import (WHERE_TAGS, add_to_finished_run, download_artifact, finished_runs, parse_where,
                             run_matches, tracking_uri)
@@ -99,16 +101,30 @@ def reevaluate_run(uri: str, run_id: str, overrides: list[str], name: str, work:
     return scores
 
 
-def table(rows: pd.DataFrame) -> pd.DataFrame:
-    """One row per agent: seeds, success rate (%) of each policy (seed mean, per seed) and the final crash rate."""
+def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
+    """One row per agent: seeds, success rate (%) of each policy (seed mean ± 95% Student-t CI, per seed), with
+    ``vs`` (an agent) the difference of the final and best policies' mean success to that agent's [95% bootstrap
+    CI] (``sweep.report.stats``), and the final crash rate."""
+    rows = rows.sort_values("seed")
+    base = rows[rows["agent"] == vs] if vs else None
     out = []
-    for label, runs in rows.sort_values("seed").groupby("label", sort=False):
-        row = {"Agent": label, "Seeds": len(runs)}
+    for agent, runs in rows.groupby("agent", sort=False):
+        row = {"Agent": runs["label"].iloc[-1], "Seeds": len(runs)}
         for policy in MODELS:
             column = f"{policy}_success_rate"
             if column in runs and runs[column].notna().any():
+                mean, half, _ = stats.mean_t_ci(100 * runs[column])
                 per_seed = ", ".join("–" if np.isnan(v) else f"{100 * v:.0f}" for v in runs[column])
-                row[f"Success {policy} (%) (per seed)"] = f"{100 * runs[column].mean():.0f} ({per_seed})"
+                row[f"Success {policy} (%) (per seed)"] = (f"{mean:.0f}" + (f" ± {half:.0f}" if np.isfinite(half) else "")
+                                                           + f" ({per_seed})")
+        if base is not None:
+            for policy in ("final", "best"):
+                column = f"{policy}_success_rate"
+                if agent != vs and column in runs and column in base:
+                    point, lo, hi = stats.mean_diff_ci(100 * runs[column], 100 * base[column])
+                    row[f"Δ {policy} vs {base['label'].iloc[-1]} (pp)"] = f"{point:.0f} [{lo:.0f}, {hi:.0f}]"
+                else:
+                    row[f"Δ {policy} vs {base['label'].iloc[-1]} (pp)"] = "–"
         row["Crash final (%)"] = f"{100 * runs['final_crash_rate'].mean():.0f}"
         out.append(row)
     return pd.DataFrame(out).sort_values("Agent", key=lambda c: c.str.casefold(), kind="stable")
@@ -121,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
                         help="only runs with this tag (agent, wind, seed) or param; repeat to require several")
     parser.add_argument("--name", required=True, help="the metric prefix of these scores, e.g. still_air")
+    parser.add_argument("--vs", metavar="AGENT", help="add each agent's success difference to this agent's, e.g. ppo")
     parser.add_argument("--out", type=Path, help="also write the table to this Markdown file")
     parser.add_argument("--uri", help="MLflow store (default: $MLFLOW_TRACKING_URI, else <project root>/mlflow.db)")
     args = parser.parse_args(argv)
@@ -132,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
                               f"({', '.join(metrics.POLICIES.values())})")
         overrides = parse_overrides(args.overrides)
         runs = select(uri, args.experiment, parse_where(args.where))
+        if args.vs and args.vs not in {tags.get("agent") for _, _, tags in runs}:
+            raise ConfigError(f"--vs {args.vs}: none of the selected runs is of that agent (the tag agent, e.g. ppo)")
         rows, skipped = [], []
         with tempfile.TemporaryDirectory() as tmp:
             first = download_artifact(uri, runs[0][0], CONFIG, Path(tmp) / "check")
@@ -143,8 +162,8 @@ def main(argv: list[str] | None = None) -> int:
                 if scores is None:
                     skipped.append(name)
                     continue
-                row = {"run": name, "label": tags.get("agent_label") or params.get("agent.label") or tags.get("agent"),
-                       "seed": int(tags.get("seed", -1))}
+                row = {"run": name, "agent": tags.get("agent"), "seed": int(tags.get("seed", -1)),
+                       "label": tags.get("agent_label") or params.get("agent.label") or tags.get("agent")}
                 row |= {f"{p}_{field}": v for p, values in scores.items() for field, v in values.items()}
                 rows.append(row)
                 print(f"reevaluate: {name}: " + ", ".join(f"{p} success {100 * v['success_rate']:.0f}%"
@@ -159,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     text = (f"Re-evaluation {args.name!r} ({' '.join(args.overrides) or 'the runs’ own protocol'}) of "
             f"{len(rows)} run(s) of {args.experiment!r}" + (f" with {' '.join(args.where)}" if args.where else "")
-            + "\n\n" + markdown(table(pd.DataFrame(rows))))
+            + "\n\n" + markdown(table(pd.DataFrame(rows), args.vs)))
     print(text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
