@@ -31,6 +31,10 @@ def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monke
     original_id = run(compose_cfg(overrides), tmp_path / "job_a")
 
     assert export(source, EXP, tmp_path / "archive", where={"wind": "none"}) == []  # --where: no such run
+    for where, message in ((["--where", "wnd=none"], "--where wnd: no FINISHED run of 'recom-hover' has that tag"),
+                           (["--where", "seed"], "expected KEY=VALUE")):  # a typo is an error, not an empty export
+        assert main(["export", "--experiment", EXP, "--out", str(tmp_path / "x"), "--uri", source, *where]) == 2
+        assert message in capsys.readouterr().err
     written = export(source, EXP, tmp_path / "archive", max_points=2, where={"seed": "4", "agent.l2.enabled": "True"})
     assert len(written) == 1 and export(source, EXP, tmp_path / "archive") == []  # each run once
     assert load(written[0]).run_id == original_id

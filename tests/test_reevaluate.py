@@ -3,6 +3,8 @@ run evaluated under that protocol logged, under its own protocol what the run it
 bad input fails before any flight with one line."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -38,8 +40,8 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     # so re-evaluating the first run in still air must give exactly what the second logged.
     windy = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "a")
     still = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", "eval.wind_speed=0", *TINY]), tmp_path / "b")
-    assert main(["--experiment", EXP, "--where", "seed=1", "--name", "still_air", "--out", str(tmp_path / "t.md"),
-                 "--vs", "ppo", "eval.wind_speed=0"]) == 0
+    assert main(["--experiment", EXP, "--where", "seed=1", "--where", "eval.wind_speed=3.0", "--name", "still_air",
+                 "--out", str(tmp_path / "t.md"), "--vs", "ppo", "eval.wind_speed=0"]) == 0
     again, target, before = logged(in_tmp, windy, "still_air/"), logged(in_tmp, still), logged(in_tmp, windy)
     assert again == target and set(again) == {"final", "best"}
     assert again["final"] != before["final"]  # the wind did change the flights (else the check above shows nothing)
@@ -51,8 +53,15 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     assert step == client.get_metric_history(windy, "eval/success_rate")[-1].step
     out = capsys.readouterr().out
     assert "| Agent | Seeds | Success final (%) (per seed) | Success best (%) (per seed) | Δ final vs PPO (pp) |" in out
-    assert "| PPO | 2 |" in out
-    assert (tmp_path / "t.md").read_text().startswith("# Re-evaluation 'still_air' (eval.wind_speed=0) of 2 run(s)")
+    assert "| PPO | 1 |" in out
+    assert (tmp_path / "t.md").read_text().startswith("# Re-evaluation 'still_air' (eval.wind_speed=0) of 1 run(s)")
+    assert not any(k.startswith("still_air/") for k in client.get_run(still).data.metrics)  # not selected
+
+    # Without the eval filter both runs are agent ppo, wind paper, seed 1: like the report, the newest counts.
+    assert main(["--experiment", EXP, "--where", "seed=1", "--name", "dup"]) == 0
+    assert "left out 1 older run(s) of an agent, wind and seed run again: ppo-paper-s1" in capsys.readouterr().err
+    assert not any(k.startswith("dup/") for k in client.get_run(windy).data.metrics)
+    assert any(k.startswith("dup/") for k in client.get_run(still).data.metrics)
 
 
 def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(in_tmp, tmp_path):
@@ -73,19 +82,32 @@ def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsy
     run_id = run(compose_cfg(["agent=ppo", "seed=0", "wind=paper", *TINY]), tmp_path / "a")
     capsys.readouterr()
     cases = [
-        (["agent.ppo.learning_rate=1"], "only eval.* overrides"),
+        (["agent.ppo.learning_rate=1"], "only eval.KEY=VALUE overrides, KEY one of wind_speed, direction"),
+        (["eval.policy=final"], "only eval.KEY=VALUE overrides"),
         (["eval.episodes=0"], "eval.episodes"),
         (["--where", "seed=9"], "no FINISHED run of 'recom-hover' matches seed=9"),
-        (["--where", "nope=1"], "--where nope: no run of 'recom-hover' has that tag or param"),
+        (["--where", "nope=1"], "--where nope: no FINISHED run of 'recom-hover' has that tag or param"),
+        (["--where", "seed=0", "--where", "seed=1"], "--where seed: given twice"),
         (["--where", "seed"], "expected KEY=VALUE"),
         (["--name", "eval_best"], "--name 'eval_best'"),
-        (["--vs", "l2"], "--vs l2: none of the selected runs is of that agent"),
+        (["--vs", "l2"], "--vs l2: no selected run of that agent"),
     ]
     for args, message in cases:
         name = [] if "--name" in args else ["--name", "x"]
         assert main(["--experiment", EXP, *name, *args]) == 2, args
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, (args, err)
+    assert not any(key.startswith("x/") for key in MlflowClient(in_tmp).get_run(run_id).data.metrics)
+
+    # Every run's config is checked before the first flight: a later run whose stored eval block lacks a key
+    # (edited here on disk) stops the command before the earlier, valid run is flown.
+    later = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "b")
+    stored = Path(MlflowClient(in_tmp).get_run(later).info.artifact_uri.removeprefix("file://")) / "config.yaml"
+    cfg = OmegaConf.load(stored)
+    del cfg.eval["success_hold_s"]
+    OmegaConf.save(cfg, stored)
+    assert main(["--experiment", EXP, "--name", "x", "eval.wind_speed=0"]) == 2
+    assert "eval.success_hold_s: missing" in capsys.readouterr().err
     assert not any(key.startswith("x/") for key in MlflowClient(in_tmp).get_run(run_id).data.metrics)
 
 
@@ -120,6 +142,7 @@ def test_a_run_whose_config_predates_a_newer_key_is_checked_on_eval_alone(tmp_pa
 
 def test_the_table_gives_each_agent_its_seed_mean_ci_and_difference_to_the_baseline():
     rows = pd.DataFrame({"agent": ["ppo"] * 3 + ["layer_norm"] * 3, "label": ["PPO"] * 3 + ["LayerNorm"] * 3,
+                         "wind": ["none"] * 6,
                          "seed": [2, 0, 1] * 2, "final_success_rate": [0.0, 0.0, 0.3, 1.0, 0.5, 0.9],
                          "best_success_rate": [1.0, 0.0, 0.0, 1.0, 1.0, 1.0], "final_crash_rate": [1, 1, 0, 0, 0, 0]})
     t = table(rows, vs="ppo").set_index("Agent")

@@ -1,32 +1,35 @@
 """Re-evaluation: fly a finished run's stored policies under another evaluation protocol, without training again.
 
-    python -m sweep.reevaluate --experiment remedies --where wind=none --name still_air eval.wind_speed=0
+    python -m sweep.reevaluate --experiment remedies --where wind=none --name still_air --vs ppo eval.wind_speed=0
 
 A run is evaluated under the protocol it was trained with (``eval.*``: e.g. the paper's 3 m/s wind, whatever the
 training wind). This flies each stored policy of every FINISHED run of ``--experiment`` whose tags or params match
-every ``--where KEY=VALUE`` (``agent``, ``wind``, ``seed`` or a flattened config name such as ``agent.ppo.lr``) with
-the run's own config and the ``eval.*`` overrides given, and
+every ``--where KEY=VALUE`` (``agent``, ``wind``, ``seed`` or a flattened config name such as ``env.n_envs``, matched
+as the logged string) with the run's own config and the ``eval.*`` overrides given, and
 
 * logs the scores to that run under ``<name>/<policy prefix>/<field>`` (``still_air/eval/success_rate``,
   ``still_air/eval_best/crash_rate``, ...: the ``sweep.metrics`` eval keys behind ``<name>/``) at the step of its
   final evaluation, with the overrides as the tag ``reeval.<name>`` (the run stays FINISHED, its other metrics
   untouched);
-* prints, and with ``--out`` writes as Markdown, one row per agent: seeds, each policy's success rate (seed mean ±
-  95% Student-t CI, then per seed in brackets), with ``--vs AGENT`` the difference of the final and best policies'
-  mean success to that agent's [95% bootstrap CI], and the final policy's crash rate.
+* prints, and with ``--out`` writes as Markdown, one row per agent (and wind): seeds, each policy's success rate
+  (seed mean ± 95% Student-t CI, then per seed in parentheses), with ``--vs AGENT`` the difference of the final and
+  best policies' mean success to that agent's [95% bootstrap CI], and the final policy's crash rate. Like the
+  report, it keeps the newest run of an agent, wind and seed run more than once (the older ones are named).
 
 The stored policies are the run artifacts ``model.zip`` (final), ``model_best.zip`` and ``model_best_eval.zip``
 (``sweep.best_policy``), kept when ``tracking.log_model`` is true; a run without them (e.g. one imported from a
 study archive without ``--artifacts model*``) is skipped and named. They load with SB3's ``PPO.load`` for both
 learners (the JAX learner saves its policy as an SB3 model), so a JAX run's flights use torch's forward pass: under
 its own protocol its re-evaluation matches its logged evaluation up to float rounding (tests/test_reevaluate.py).
-Only ``eval.*`` keys may change: the policy was trained under the rest.
+Only the eval keys a flight depends on may change (``FLIGHT_KEYS``): the policy was trained under the rest. Every
+run's config is checked before the first flight, so bad input is one line, exit code 2, nothing flown or logged.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -40,35 +43,36 @@ from sweep.config import ConfigError, validate_section
 from sweep.evaluate import evaluate
 from sweep.report import stats
 from sweep.report.tables import markdown
-from sweep.tracking import (WHERE_TAGS, add_to_finished_run, download_artifact, finished_runs, parse_where,
-                            run_matches, tracking_uri)
+from sweep.tracking import add_to_finished_run, download_artifact, finished_runs, parse_where, tracking_uri
 
 CONFIG = "config.yaml"
 MODELS = {policy: "model.zip" if policy == "final" else f"model_{policy}.zip" for policy in metrics.POLICIES}
+# The eval keys a flight depends on; eval.policy and eval.every_timesteps say what training kept and when it flew.
+FLIGHT_KEYS = ("wind_speed", "direction", "episodes", "seed", "success_radius", "success_hold_s")
+
+
+@dataclass
+class StoredRun:
+    """A finished run to fly again: who it is, its config with the overrides, and its downloaded models."""
+    run_id: str
+    name: str
+    agent: str
+    wind: str
+    seed: int
+    label: str
+    cfg: DictConfig
+    models: dict[str, Path] = field(default_factory=dict)  # policy (metrics.POLICIES key) -> model file
 
 
 def parse_overrides(items: list[str]) -> DictConfig:
+    """``["eval.wind_speed=0", ...]`` as a config to merge onto a run's; ConfigError for any key but
+    ``eval.<FLIGHT_KEYS>`` (the policy was trained under the rest of its config)."""
     for item in items:
         key = item.partition("=")[0]
-        if "=" not in item or not key.startswith("eval.") or key == "eval.":
-            raise ConfigError(f"{item!r}: only eval.* overrides (KEY=VALUE, e.g. eval.wind_speed=0) may change; "
+        if "=" not in item or not key.startswith("eval.") or key.removeprefix("eval.") not in FLIGHT_KEYS:
+            raise ConfigError(f"{item!r}: only eval.KEY=VALUE overrides, KEY one of {', '.join(FLIGHT_KEYS)}; "
                               "the policy was trained under the rest of its config")
     return OmegaConf.from_dotlist(items)
-
-
-def select(uri: str, experiment: str, where: dict[str, str]) -> list[tuple[str, dict[str, str], dict[str, str]]]:
-    """(run id, params, tags) of the FINISHED runs of ``experiment`` that match ``where``, oldest first."""
-    runs = finished_runs(uri, experiment)
-    known = set(WHERE_TAGS).union(*(params for _, params, _ in runs))
-    for key in where:
-        if key not in known:
-            raise ConfigError(f"--where {key}: no run of {experiment!r} has that tag or param "
-                              "(agent, wind, seed or a flattened config name, e.g. agent.ppo.lr)")
-    chosen = [run for run in runs if run_matches(run[1], run[2], where)]
-    if not chosen:
-        raise ConfigError(f"no FINISHED run of {experiment!r} matches "
-                          + (" ".join(f"{k}={v}" for k, v in where.items()) or "(no --where)"))
-    return chosen
 
 
 def run_config(stored: Path, overrides: DictConfig) -> DictConfig:
@@ -79,37 +83,57 @@ def run_config(stored: Path, overrides: DictConfig) -> DictConfig:
     return cfg
 
 
-def reevaluate_run(uri: str, run_id: str, overrides: list[str], name: str, work: Path) -> dict[str, dict] | None:
-    """Fly the run's stored policies under its protocol with the ``eval.*`` ``overrides``; {policy: scores},
-    logged to the run under ``<name>/``. None if the run stored no config or no model."""
-    config = download_artifact(uri, run_id, CONFIG, work)
-    if config is None:
-        return None
-    cfg = run_config(config, parse_overrides(overrides))
-    scores = {}
-    for policy, artifact in MODELS.items():
-        path = download_artifact(uri, run_id, artifact, work)
-        if path is not None:
-            values, _ = evaluate(PPO.load(path, device="cpu"), cfg.eval, cfg.env)
-            scores[policy] = values
-    if not scores:
-        return None
-    logged = {f"{name}/{metrics.eval_key(policy, field)}": value
-              for policy, values in scores.items() for field, value in values.items()}
-    add_to_finished_run(uri, run_id, logged, {f"reeval.{name}": " ".join(overrides) or "(own protocol)"},
+def prepare(uri: str, runs: list[tuple[str, dict[str, str], dict[str, str]]], overrides: DictConfig,
+            work: Path) -> tuple[list[StoredRun], list[str], list[str]]:
+    """Download every run's config and models and check its eval block with the overrides, before any flight:
+    (the newest run of each agent, wind and seed that stored a config and a model, the names of the runs without
+    them, the names of the older runs of a repeated agent/wind/seed, left out like the report leaves them out)."""
+    stored, skipped = {}, []
+    for i, (run_id, params, tags) in enumerate(runs):
+        name = tags.get("run_name", run_id[:8])
+        config = download_artifact(uri, run_id, CONFIG, work / str(i))
+        models = {p: path for p, artifact in MODELS.items()
+                  if (path := download_artifact(uri, run_id, artifact, work / str(i))) is not None}
+        if config is None or not models:
+            skipped.append(name)
+            continue
+        run = StoredRun(run_id, name, tags.get("agent", "?"), tags.get("wind", "?"), int(tags.get("seed", -1)),
+                        tags.get("agent_label") or params.get("agent.label") or tags.get("agent", "?"),
+                        run_config(config, overrides), models)
+        stored.setdefault((run.agent, run.wind, run.seed), []).append(run)  # runs come oldest first
+    older = [r.name for same in stored.values() for r in same[:-1]]
+    return [same[-1] for same in stored.values()], skipped, older
+
+
+def fly_and_log(uri: str, run: StoredRun, name: str, overrides: list[str]) -> dict[str, dict[str, float]]:
+    """Fly the run's stored policies under its (overridden) protocol; {policy: scores}, logged to the run under
+    ``<name>/`` at the step of its final evaluation, with the overrides as the tag ``reeval.<name>``."""
+    scores = {policy: evaluate(PPO.load(path, device="cpu"), run.cfg.eval, run.cfg.env)[0]
+              for policy, path in run.models.items()}
+    logged = {f"{name}/{metrics.eval_key(policy, key)}": value
+              for policy, values in scores.items() for key, value in values.items()}
+    add_to_finished_run(uri, run.run_id, logged, {f"reeval.{name}": " ".join(overrides) or "(own protocol)"},
                         step_of=metrics.eval_key("final", "success_rate"))
     return scores
 
 
+def _interval(point: float, lo: float, hi: float) -> str:
+    if not np.isfinite(point):
+        return "–"
+    return f"{point:.0f}" + (f" [{lo:.0f}, {hi:.0f}]" if np.isfinite(lo) else "")
+
+
 def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
-    """One row per agent: seeds, success rate (%) of each policy (seed mean ± 95% Student-t CI, per seed), with
-    ``vs`` (an agent) the difference of the final and best policies' mean success to that agent's [95% bootstrap
-    CI] (``sweep.report.stats``), and the final crash rate."""
+    """One row per agent (and wind, where the rows have several): seeds, success rate (%) of each policy (seed mean
+    ± 95% Student-t CI, then per seed in parentheses), with ``vs`` (an agent) the difference of the final and best
+    policies' mean success to that agent's in the same wind [95% bootstrap CI] (``sweep.report.stats``), and the
+    final policy's crash rate."""
     rows = rows.sort_values("seed")
-    base = rows[rows["agent"] == vs] if vs else None
+    winds = rows["wind"].nunique() > 1
+    vs_label = rows.loc[rows["agent"] == vs, "label"].iloc[-1] if vs in set(rows["agent"]) else vs
     out = []
-    for agent, runs in rows.groupby("agent", sort=False):
-        row = {"Agent": runs["label"].iloc[-1], "Seeds": len(runs)}
+    for (agent, wind), runs in rows.groupby(["agent", "wind"], sort=False):
+        row = {"Agent": runs["label"].iloc[-1] + (f" (wind {wind})" if winds else ""), "Seeds": len(runs)}
         for policy in MODELS:
             column = f"{policy}_success_rate"
             if column in runs and runs[column].notna().any():
@@ -117,25 +141,29 @@ def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
                 per_seed = ", ".join("–" if np.isnan(v) else f"{100 * v:.0f}" for v in runs[column])
                 row[f"Success {policy} (%) (per seed)"] = (f"{mean:.0f}" + (f" ± {half:.0f}" if np.isfinite(half) else "")
                                                            + f" ({per_seed})")
-        if base is not None:
+        if vs:
+            base = rows[(rows["agent"] == vs) & (rows["wind"] == wind)]
             for policy in ("final", "best"):
                 column = f"{policy}_success_rate"
-                if agent != vs and column in runs and column in base:
-                    point, lo, hi = stats.mean_diff_ci(100 * runs[column], 100 * base[column])
-                    row[f"Δ {policy} vs {base['label'].iloc[-1]} (pp)"] = f"{point:.0f} [{lo:.0f}, {hi:.0f}]"
-                else:
-                    row[f"Δ {policy} vs {base['label'].iloc[-1]} (pp)"] = "–"
-        row["Crash final (%)"] = f"{100 * runs['final_crash_rate'].mean():.0f}"
+                point = (np.nan,) * 3
+                if agent != vs and column in rows:
+                    point = stats.mean_diff_ci(100 * runs[column], 100 * base[column])
+                row[f"Δ {policy} vs {vs_label} (pp)"] = _interval(*point)
+        crash = runs["final_crash_rate"].mean() if "final_crash_rate" in runs else np.nan
+        row["Crash final (%)"] = "–" if np.isnan(crash) else f"{100 * crash:.0f}"
         out.append(row)
     return pd.DataFrame(out).sort_values("Agent", key=lambda c: c.str.casefold(), kind="stable")
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The CLI: select and prepare the runs (any bad input: one line, exit 2, nothing flown or logged), fly and log
+    each, print the table (exit 1 if no run had a stored config and model)."""
     parser = argparse.ArgumentParser(prog="python -m sweep.reevaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("overrides", nargs="*", help="eval.* overrides, e.g. eval.wind_speed=0 eval.episodes=20")
     parser.add_argument("--experiment", required=True, help="the MLflow experiment of the runs")
     parser.add_argument("--where", action="append", default=[], metavar="KEY=VALUE",
-                        help="only runs with this tag (agent, wind, seed) or param; repeat to require several")
+                        help="only runs with this tag (agent, wind, seed) or param (its logged string, e.g. "
+                             "env.n_envs=16); repeat with other keys to require several")
     parser.add_argument("--name", required=True, help="the metric prefix of these scores, e.g. still_air")
     parser.add_argument("--vs", metavar="AGENT", help="add each agent's success difference to this agent's, e.g. ppo")
     parser.add_argument("--out", type=Path, help="also write the table to this Markdown file")
@@ -143,37 +171,36 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     uri = tracking_uri(args.uri)
-    try:
-        if not args.name.replace("_", "").isalnum() or args.name in metrics.POLICIES.values():
-            raise ConfigError(f"--name {args.name!r}: letters, digits and _ only, not an eval prefix "
-                              f"({', '.join(metrics.POLICIES.values())})")
-        overrides = parse_overrides(args.overrides)
-        runs = select(uri, args.experiment, parse_where(args.where))
-        if args.vs and args.vs not in {tags.get("agent") for _, _, tags in runs}:
-            raise ConfigError(f"--vs {args.vs}: none of the selected runs is of that agent (the tag agent, e.g. ppo)")
-        rows, skipped = [], []
-        with tempfile.TemporaryDirectory() as tmp:
-            first = download_artifact(uri, runs[0][0], CONFIG, Path(tmp) / "check")
-            if first is not None:
-                run_config(first, overrides)  # a bad override value fails before any flight
-            for i, (run_id, params, tags) in enumerate(runs):
-                scores = reevaluate_run(uri, run_id, args.overrides, args.name, Path(tmp) / str(i))
-                name = tags.get("run_name", run_id[:8])
-                if scores is None:
-                    skipped.append(name)
-                    continue
-                row = {"run": name, "agent": tags.get("agent"), "seed": int(tags.get("seed", -1)),
-                       "label": tags.get("agent_label") or params.get("agent.label") or tags.get("agent")}
-                row |= {f"{p}_{field}": v for p, values in scores.items() for field, v in values.items()}
-                rows.append(row)
-                print(f"reevaluate: {name}: " + ", ".join(f"{p} success {100 * v['success_rate']:.0f}%"
-                                                            for p, v in scores.items()), flush=True)
-    except (ConfigError, ValueError) as err:
-        print(f"reevaluate: {err}", file=sys.stderr)
-        return 2
-    if skipped:
-        print(f"reevaluate: skipped {len(skipped)} run(s) without a stored config or model: {', '.join(skipped)}",
-              file=sys.stderr)
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            if not args.name.replace("_", "").isalnum() or args.name in metrics.POLICIES.values():
+                raise ConfigError(f"--name {args.name!r}: letters, digits and _ only, not an eval prefix "
+                                  f"({', '.join(metrics.POLICIES.values())})")
+            overrides = parse_overrides(args.overrides)
+            where = parse_where(args.where)
+            runs = finished_runs(uri, args.experiment, where)
+            if not runs:
+                raise ConfigError(f"no FINISHED run of {args.experiment!r} matches "
+                                  + " ".join(f"{k}={v}" for k, v in where.items()))
+            stored, skipped, older = prepare(uri, runs, overrides, Path(tmp))
+            if args.vs and args.vs not in {r.agent for r in stored}:
+                raise ConfigError(f"--vs {args.vs}: no selected run of that agent (tag agent, e.g. ppo) stored a model")
+        except (ConfigError, ValueError) as err:
+            print(f"reevaluate: {err}", file=sys.stderr)
+            return 2
+        if skipped:
+            print(f"reevaluate: skipped {len(skipped)} run(s) without a stored config or model: {', '.join(skipped)}",
+                  file=sys.stderr)
+        if older:
+            print(f"reevaluate: left out {len(older)} older run(s) of an agent, wind and seed run again: "
+                  f"{', '.join(older)}", file=sys.stderr)
+        rows = []
+        for run in stored:
+            scores = fly_and_log(uri, run, args.name, args.overrides)
+            rows.append({"agent": run.agent, "wind": run.wind, "seed": run.seed, "label": run.label}
+                        | {f"{p}_{key}": v for p, values in scores.items() for key, v in values.items()})
+            print(f"reevaluate: {run.name}: " + ", ".join(f"{p} success {100 * v['success_rate']:.0f}%"
+                                                        for p, v in scores.items()), flush=True)
     if not rows:
         return 1
     text = (f"Re-evaluation {args.name!r} ({' '.join(args.overrides) or 'the runs’ own protocol'}) of "

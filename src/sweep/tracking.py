@@ -223,12 +223,15 @@ WHERE_TAGS = ("agent", "wind", "seed")  # what a ``where`` key names in a run's 
 
 
 def parse_where(items: list[str]) -> dict[str, str]:
-    """``["wind=none", "agent.ppo.lr=0.0003"]`` -> {key: value} (ValueError naming a malformed item)."""
-    where = {}
+    """``["wind=none", "env.n_envs=16"]`` -> {key: value}; ValueError naming a malformed or repeated item. A value
+    matches the logged string exactly (``agent.ppo.learning_rate=0.0003``, not ``3e-4``)."""
+    where: dict[str, str] = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise ValueError(f"--where {item!r}: expected KEY=VALUE, e.g. wind=none or agent.ppo.lr=0.0003")
+            raise ValueError(f"--where {item!r}: expected KEY=VALUE, e.g. wind=none or env.n_envs=16")
+        if key in where:
+            raise ValueError(f"--where {key}: given twice ({where[key]!r}, {value!r}); a run has one value per key")
         where[key] = value
     return where
 
@@ -245,10 +248,8 @@ def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),
     run id or, for a run imported from an archive, by the run id it was exported from (its ``archived_from`` tag)."""
     client = MlflowClient(tracking_uri=uri)
     out = []
-    for run in _finished(client, uri, experiment):
+    for run in _finished(client, uri, experiment, where or {}):
         if run.info.run_id in skip or run.data.tags.get(ARCHIVED_FROM) in skip:
-            continue
-        if not run_matches(run.data.params, run.data.tags, where or {}):
             continue
         record = RunRecord(run.info.run_id, experiment, run.info.start_time, run.info.end_time,
                            dict(run.data.params), dict(run.data.tags))
@@ -307,18 +308,27 @@ def write_finished_run(uri: str, record: RunRecord, experiment: str | None = Non
     return run_id
 
 
-def finished_runs(uri: str, experiment: str) -> list[tuple[str, dict[str, str], dict[str, str]]]:
-    """(run id, params, tags) of every FINISHED run of ``experiment``, oldest first."""
+def finished_runs(uri: str, experiment: str, where: dict[str, str] | None = None
+                  ) -> list[tuple[str, dict[str, str], dict[str, str]]]:
+    """(run id, params, tags) of the FINISHED runs of ``experiment`` that match ``where``, oldest first."""
     return [(r.info.run_id, dict(r.data.params), dict(r.data.tags))
-            for r in _finished(MlflowClient(tracking_uri=uri), uri, experiment)]
+            for r in _finished(MlflowClient(tracking_uri=uri), uri, experiment, where or {})]
 
 
-def _finished(client: MlflowClient, uri: str, experiment: str) -> list:
+def _finished(client: MlflowClient, uri: str, experiment: str, where: dict[str, str]) -> list:
+    """The FINISHED runs (MLflow ``Run``s) of ``experiment`` matching ``where``, oldest first; ValueError for an
+    unknown experiment or a ``where`` key that no FINISHED run has (a typo would otherwise select nothing)."""
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
         raise ValueError(f"no experiment {experiment!r} in {uri}; it has: {', '.join(experiment_names(uri)) or 'none'}")
-    return client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'", max_results=50000,
+    runs = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'", max_results=50000,
                               order_by=["attributes.start_time ASC"])
+    known = set(WHERE_TAGS).union(*(r.data.params for r in runs))
+    for key in where:
+        if key not in known:
+            raise ValueError(f"--where {key}: no FINISHED run of {experiment!r} has that tag or param "
+                             "(agent, wind, seed or a flattened config name, e.g. env.n_envs)")
+    return [r for r in runs if run_matches(r.data.params, r.data.tags, where)]
 
 
 def download_artifact(uri: str, run_id: str, path: str, dst: Path) -> Path | None:
