@@ -29,7 +29,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -42,8 +42,9 @@ from sweep import metrics
 from sweep.config import ConfigError, validate_section
 from sweep.evaluate import evaluate
 from sweep.report import stats
-from sweep.report.tables import markdown
-from sweep.tracking import add_to_finished_run, download_artifact, finished_runs, parse_where, tracking_uri
+from sweep.report.load import agent_label
+from sweep.report.tables import interval, markdown, plus_minus
+from sweep.tracking import add_to_finished_run, download_artifacts, finished_runs, parse_where, tracking_uri
 
 CONFIG = "config.yaml"
 MODELS = {policy: "model.zip" if policy == "final" else f"model_{policy}.zip" for policy in metrics.POLICIES}
@@ -61,7 +62,7 @@ class StoredRun:
     seed: int
     label: str
     cfg: DictConfig
-    models: dict[str, Path] = field(default_factory=dict)  # policy (metrics.POLICIES key) -> model file
+    models: dict[str, Path]  # policy (metrics.POLICIES key) -> model file
 
 
 def parse_overrides(items: list[str]) -> DictConfig:
@@ -90,16 +91,14 @@ def prepare(uri: str, runs: list[tuple[str, dict[str, str], dict[str, str]]], ov
     them, the names of the older runs of a repeated agent/wind/seed, left out like the report leaves them out)."""
     stored, skipped = {}, []
     for i, (run_id, params, tags) in enumerate(runs):
-        name = tags.get("run_name", run_id[:8])
-        config = download_artifact(uri, run_id, CONFIG, work / str(i))
-        models = {p: path for p, artifact in MODELS.items()
-                  if (path := download_artifact(uri, run_id, artifact, work / str(i))) is not None}
-        if config is None or not models:
+        name, agent = tags.get("run_name", run_id[:8]), tags.get("agent", "?")
+        files = download_artifacts(uri, run_id, [CONFIG, *MODELS.values()], work / str(i))
+        models = {policy: files[artifact] for policy, artifact in MODELS.items() if artifact in files}
+        if CONFIG not in files or not models:
             skipped.append(name)
             continue
-        run = StoredRun(run_id, name, tags.get("agent", "?"), tags.get("wind", "?"), int(tags.get("seed", -1)),
-                        tags.get("agent_label") or params.get("agent.label") or tags.get("agent", "?"),
-                        run_config(config, overrides), models)
+        run = StoredRun(run_id, name, agent, tags.get("wind", "?"), int(tags.get("seed", -1)),
+                        agent_label(agent, tags, params), run_config(files[CONFIG], overrides), models)
         stored.setdefault((run.agent, run.wind, run.seed), []).append(run)  # runs come oldest first
     older = [r.name for same in stored.values() for r in same[:-1]]
     return [same[-1] for same in stored.values()], skipped, older
@@ -115,12 +114,6 @@ def fly_and_log(uri: str, run: StoredRun, name: str, overrides: list[str]) -> di
     add_to_finished_run(uri, run.run_id, logged, {f"reeval.{name}": " ".join(overrides) or "(own protocol)"},
                         step_of=metrics.eval_key("final", "success_rate"))
     return scores
-
-
-def _interval(point: float, lo: float, hi: float) -> str:
-    if not np.isfinite(point):
-        return "–"
-    return f"{point:.0f}" + (f" [{lo:.0f}, {hi:.0f}]" if np.isfinite(lo) else "")
 
 
 def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
@@ -139,8 +132,7 @@ def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
             if column in runs and runs[column].notna().any():
                 mean, half, _ = stats.mean_t_ci(100 * runs[column])
                 per_seed = ", ".join("–" if np.isnan(v) else f"{100 * v:.0f}" for v in runs[column])
-                row[f"Success {policy} (%) (per seed)"] = (f"{mean:.0f}" + (f" ± {half:.0f}" if np.isfinite(half) else "")
-                                                           + f" ({per_seed})")
+                row[f"Success {policy} (%) (per seed)"] = f"{plus_minus(mean, half, 0)} ({per_seed})"
         if vs:
             base = rows[(rows["agent"] == vs) & (rows["wind"] == wind)]
             for policy in ("final", "best"):
@@ -148,7 +140,7 @@ def table(rows: pd.DataFrame, vs: str | None = None) -> pd.DataFrame:
                 point = (np.nan,) * 3
                 if agent != vs and column in rows:
                     point = stats.mean_diff_ci(100 * runs[column], 100 * base[column])
-                row[f"Δ {policy} vs {vs_label} (pp)"] = _interval(*point)
+                row[f"Δ {policy} vs {vs_label} (pp)"] = interval(*point, 0)
         crash = runs["final_crash_rate"].mean() if "final_crash_rate" in runs else np.nan
         row["Crash final (%)"] = "–" if np.isnan(crash) else f"{100 * crash:.0f}"
         out.append(row)

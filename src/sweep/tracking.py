@@ -11,7 +11,7 @@
   (``rollout/ep_rew_mean``, ``train/loss``, ...).
 * ``read_finished_runs`` / ``write_finished_run``: a finished run as a plain ``RunRecord`` and back, for the
   study archives of ``sweep.archive`` (a long study carried from one machine's store to another's).
-* ``finished_runs`` / ``download_artifact`` / ``add_to_finished_run``: a finished run's stored policies read and
+* ``finished_runs`` / ``download_artifacts`` / ``add_to_finished_run``: a finished run's stored policies read and
   scores added to it, for ``sweep.reevaluate``.
 """
 from __future__ import annotations
@@ -331,12 +331,11 @@ def _finished(client: MlflowClient, uri: str, experiment: str, where: dict[str, 
     return [r for r in runs if run_matches(r.data.params, r.data.tags, where)]
 
 
-def download_artifact(uri: str, run_id: str, path: str, dst: Path) -> Path | None:
-    """The run's artifact ``path`` downloaded into ``dst``; None if the run has no such artifact."""
+def download_artifacts(uri: str, run_id: str, paths: list[str], dst: Path) -> dict[str, Path]:
+    """Those of the artifact ``paths`` the run has, downloaded into ``dst``: {path: local file} (one listing)."""
     client = MlflowClient(tracking_uri=uri)
-    if path not in {a.path for a in client.list_artifacts(run_id, str(Path(path).parent) if "/" in path else None)}:
-        return None
-    return Path(client.download_artifacts(run_id, path, str(dst)))
+    present = set(_artifact_files(client, run_id))
+    return {path: Path(client.download_artifacts(run_id, path, str(dst))) for path in paths if path in present}
 
 
 def add_to_finished_run(uri: str, run_id: str, metrics: dict[str, float], tags: dict[str, str],

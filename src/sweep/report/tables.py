@@ -18,13 +18,13 @@ SUFFIX = {"final": "", "best": "_best", "best_eval": "_best_eval"}
 SHOWN = ("final", "best")
 
 
-def _pm(mean: float, half: float, digits: int) -> str:
+def plus_minus(mean: float, half: float, digits: int) -> str:
     if not np.isfinite(mean):
         return "–"
     return f"{mean:.{digits}f}" + (f" ± {half:.{digits}f}" if np.isfinite(half) else "")
 
 
-def _interval(point: float, lo: float, hi: float, digits: int) -> str:
+def interval(point: float, lo: float, hi: float, digits: int) -> str:
     if not np.isfinite(point):
         return "–"
     return f"{point:.{digits}f}" + (f" [{lo:.{digits}f}, {hi:.{digits}f}]" if np.isfinite(lo) else "")
@@ -81,7 +81,7 @@ def _key(policy: str, field: str) -> str:
 
 def _cell(mean: float, half: float, n: int, seeds: int, digits: int) -> str:
     """mean ± half, '(n=k)' appended where only k of the condition's seeds evaluated that policy; '–' for none."""
-    text = _pm(mean, half, digits)
+    text = plus_minus(mean, half, digits)
     return text + (f" (n={n})" if 0 < n < seeds else "")
 
 
@@ -129,7 +129,7 @@ def table3(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions) -> tupl
         for f in TABLE3:
             num[f"top_seed_{f.name}"] = top[_key("final", f.name)] * f.scale if top is not None else np.nan
         shown["Top seed"] = num["top_seed"] if top is not None else "–"
-        shown["Top seed: success final (%)"] = _pm(num["top_seed_success_rate"], np.nan, 0)
+        shown["Top seed: success final (%)"] = plus_minus(num["top_seed_success_rate"], np.nan, 0)
         shown["Top seed: MSE x/y/z final (m²)"] = (
             "–" if top is None or not np.isfinite(num["top_seed_mse_x"])
             else " / ".join(f"{num[f'top_seed_mse_{a}']:.2f}" for a in "xyz"))
@@ -173,8 +173,8 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
                                                    int(g[_key(p, f"{what}_rate")].notna().sum()), len(g), 0)
                     for what in ("success", "crash") for p in SHOWN},
                  "Best taken at (step)": source_step(g, "best")[1],
-                 "IQM final reward [95% CI]": _interval(iqm, iqm_lo, iqm_hi, 1),
-                 "P(> PPO) [95% CI]": _interval(*poi, 2),
+                 "IQM final reward [95% CI]": interval(iqm, iqm_lo, iqm_hi, 1),
+                 "P(> PPO) [95% CI]": interval(*poi, 2),
                  "Wall time per run (min)": _fixed(num["wall_minutes"], 1)}
         if baseline is not None:
             key, value = baseline
@@ -182,7 +182,7 @@ def summary(runs: pd.DataFrame, per_run: pd.DataFrame, conds: Conditions,
             delta = stats.iqm_diff_ci(g["final_reward"], scores(base)) if base is not None else (np.nan,) * 3
             num.update({"baseline": base if base is not None else "", "delta_iqm": delta[0],
                         "delta_iqm_ci_low": delta[1], "delta_iqm_ci_high": delta[2]})
-            shown[f"Δ IQM vs {key}={value} [95% CI]"] = _interval(*delta, 1) if base is not None else ""
+            shown[f"Δ IQM vs {key}={value} [95% CI]"] = interval(*delta, 1) if base is not None else ""
         numbers.append(num)
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
@@ -203,7 +203,7 @@ def segments(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions) -> tuple[
             mean, half, n = stats.mean_t_ci(s["reward"])
             numbers.append({**_identity(conds, cond, wind), "segment": k, "start": start, "end": end,
                             "speed": speed, "reward_mean": mean, "reward_ci95": half, "n_seeds": n})
-            shown[f"{_steps(start)}–{_steps(end)} ({speed:g} m/s)"] = _pm(mean, half, 0)
+            shown[f"{_steps(start)}–{_steps(end)} ({speed:g} m/s)"] = plus_minus(mean, half, 0)
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
@@ -251,9 +251,9 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
                **{column: g[column].mean() for column in FINALS if column != "final_reward"},
                "wall_minutes": g["wall_minutes"].mean()}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
-                 "Keeps hovering (%)": _pm(100 * keep, 100 * half, 0), "per seed": _per_seed(g, "keeps_hovering"),
-                 "P(> PPO) [95% CI]": _interval(*poi, 2),
-                 "IQM final reward [95% CI]": _interval(*iqm, 0),
+                 "Keeps hovering (%)": plus_minus(100 * keep, 100 * half, 0), "per seed": _per_seed(g, "keeps_hovering"),
+                 "P(> PPO) [95% CI]": interval(*poi, 2),
+                 "IQM final reward [95% CI]": interval(*iqm, 0),
                  **{f"Success {p} (%)": f"{_fixed(100 * num[f'success_{p}'], 0)} ({_per_seed(g, _key(p, 'success_rate'))})"
                     for p in SHOWN},
                  **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in CURVES
@@ -282,7 +282,7 @@ def versus(runs: pd.DataFrame, late: pd.DataFrame, conds: Conditions,
         present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
         keep, half, _ = stats.mean_t_ci(g["keeps_hovering"])
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "keeps_hovering": keep}
-        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g), "Keeps hovering (%)": _pm(100 * keep, 100 * half, 0)}
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g), "Keeps hovering (%)": plus_minus(100 * keep, 100 * half, 0)}
         for ref in references:
             other = baseline_of(present, cond, "agent", ref) if ref in set(present["agent"]) else None
             theirs = dw.loc[dw["condition"] == other, "keeps_hovering"] if other is not None else []
@@ -292,8 +292,8 @@ def versus(runs: pd.DataFrame, late: pd.DataFrame, conds: Conditions,
                         f"p_improve_over_{ref}_ci_high": poi[2], f"delta_keeps_vs_{ref}": delta[0],
                         f"delta_keeps_vs_{ref}_ci_low": delta[1], f"delta_keeps_vs_{ref}_ci_high": delta[2]})
             name = conds.labels.get(ref, ref)
-            shown[f"P(> {name}) [95% CI]"] = _interval(*poi, 2)
-            shown[f"Δ vs {name} (pp) [95% CI]"] = _interval(*(100 * v for v in delta), 0)
+            shown[f"P(> {name}) [95% CI]"] = interval(*poi, 2)
+            shown[f"Δ vs {name} (pp) [95% CI]"] = interval(*(100 * v for v in delta), 0)
         numbers.append(num)
         display.append(shown)
     numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
@@ -327,9 +327,9 @@ def reward_at(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, st
             numbers.append({**_identity(conds, cond, wind), "step": s, "n_seeds": int(g[s].notna().sum()),
                             "iqm": iqm[0], "iqm_ci_low": iqm[1], "iqm_ci_high": iqm[2], "baseline": base or "",
                             "delta_iqm": delta[0], "delta_ci_low": delta[1], "delta_ci_high": delta[2]})
-            shown[f"IQM at {_steps(s)}"] = _interval(*iqm, 1)
+            shown[f"IQM at {_steps(s)}"] = interval(*iqm, 1)
             if baseline is not None:
-                shown[f"Δ at {_steps(s)}"] = _interval(*delta, 1) if base is not None else ""
+                shown[f"Δ at {_steps(s)}"] = interval(*delta, 1) if base is not None else ""
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
