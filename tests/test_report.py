@@ -280,7 +280,8 @@ def spy_figures(monkeypatch) -> dict:
                         "curves": {line.get_label(): line.get_ydata() for line in ax.get_lines()
                                    if not line.get_label().startswith("_")}} for ax in axes],
             "note": " ".join(t.get_text() for t in fig.texts).replace("\n", " "),
-            "legend": [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]}
+            "legend": [t.get_text() for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg
+                       for t in leg.get_texts()]}
         return save(fig, out, stem)
 
     monkeypatch.setattr(figures, "save", spy)
@@ -310,8 +311,15 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         if max(steps) >= (2 if stem in SPARSE else 1):
             stems.add(f"{stem}_paper")
     if "eval_success_paper" in stems:  # evaluations during training: the performance profile of the late ones
-        stems.add("performance_profile_paper")
+        stems |= {"performance_profile_paper", "interval_keeps_hovering"}
+    finals = {k for r in runs for k in r.data.metrics}
+    stems |= {f"interval_{name}" for name, key in [("final_reward", "rollout/ep_rew_mean"),
+                                                    ("success_final", "eval/success_rate"),
+                                                    ("success_best", "eval_best/success_rate")] if key in finals}
     return stems
+
+
+PANELLED = ("eval_flights_3d", "eval_position_axes")  # a panel per condition: one column wide whatever --by says
 
 
 # -- tests ---------------------------------------------------------------------------------------------------
@@ -324,13 +332,17 @@ def test_report_writes_every_file_and_says_what_is_missing(store, report):
         pixels = image.imread(out / f"{stem}.png")
         height, width = pixels.shape[:2]
         tallest = 2600 if stem.startswith("dormant") else 2000  # the dormant figure: five readings, a note
-        assert 900 <= width <= 1200 and 500 <= height <= tallest, (stem, pixels.shape)  # 3.5 in at 300 dpi
+        # one column (3.5 in at 300 dpi), or both (7.16 in) for the small multiples of the two L2 coefficients
+        narrow, wide = 900 <= width <= 1200, 1700 <= width <= 2200
+        shortest = 250 if stem.startswith("interval") else 500  # an interval figure: a row per agent (here two)
+        assert (narrow if stem in PANELLED else wide) and shortest <= height <= tallest, (stem, pixels.shape)
         rgba = np.ascontiguousarray((pixels * 255).astype(np.uint8)).view(np.uint32)  # one number per pixel
         assert len(np.unique(rgba)) > 20, f"{stem}.png is blank"
         pdf = (out / f"{stem}.pdf").read_bytes()
         assert pdf.startswith(b"%PDF") and re.search(rb"/Type\s*/Page[^s]", pdf), f"{stem}.pdf"
     # the dormant figure carries the saturated-unit panel below it
     assert image.imread(out / "dormant_paper.png").shape[0] > 1.3 * image.imread(out / "reward_paper.png").shape[0]
+    assert {"interval_keeps_hovering", "interval_success_final", "interval_success_best"} <= figure_stems(out)
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     assert stdout.strip().splitlines()[-1] == str(out.resolve())
@@ -341,7 +353,8 @@ def test_report_writes_every_file_and_says_what_is_missing(store, report):
 
 def test_curve_figures_exist_exactly_when_their_data_exist(store, hand_report):
     tmp_path, stdout = hand_report
-    assert figure_stems(tmp_path) == expected_curves(store, HAND) == {"reward_paper", "dormant_paper"}
+    assert figure_stems(tmp_path) == expected_curves(store, HAND) == {"reward_paper", "dormant_paper",
+                                                                     "interval_final_reward", "interval_success_final"}
     # no saturated share logged: the dormant figure has a single panel (a second adds 1.4 in, 60% of this height;
     # the note below its legend, two lines)
     assert image.imread(tmp_path / "dormant_paper.png").shape[0] < 1.3 * image.imread(
@@ -720,7 +733,8 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
-                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper"})
+                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
+                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_best"})
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -751,55 +765,93 @@ def test_without_by_conditions_are_agents_and_look_as_before(plain_report):
     assert "4 older duplicate run(s) of the same agent/wind/seed left out" in stdout
     assert "| PPO | paper |" in (out / "summary.md").read_text() and "coef=" not in (out / "table3.md").read_text()
     looks = style.looks({"PPO": "ppo", "L2 + PPO": "l2", "RECOM + L2 PPO": "recom_l2", "mine": "mine"})
-    assert looks["PPO"] == (style.FIXED["ppo"], "-") and looks["RECOM + L2 PPO"][0] == style.FIXED["recom_l2"]
-    assert looks["mine"] == (style.EXTRA[0], style.OTHER_DASH)
+    assert looks["PPO"] == (style.AGENT_COLOURS["ppo"], "-")
+    assert looks["RECOM + L2 PPO"][0] == style.AGENT_COLOURS["recom_l2"]
+    free = [c for c in style.PALETTE if c not in {style.AGENT_COLOURS[a] for a in ("ppo", "l2", "recom_l2")}]
+    assert looks["mine"] == (free[0], style.OTHER_DASH)  # an agent of no fixed colour: the first one not in use
 
 
 def test_every_condition_looks_different():
     agent_of = {f"{a} {i}": a for a in ("ppo", "l2", "mine") for i in range(12)} | {"RECOM": "recom_l2"}
     looks = style.looks(agent_of)
     assert len({(c, str(d)) for c, d in looks.values()}) == len(agent_of) == 37
-    assert looks["ppo 0"] == (style.FIXED["ppo"], "-") and looks["RECOM"] == (style.FIXED["recom_l2"],
-                                                                             style.DASHES["recom_l2"])
+    assert looks["ppo 0"] == (style.AGENT_COLOURS["ppo"], "-")
+    assert looks["RECOM"] == (style.AGENT_COLOURS["recom_l2"], style.DASHES["recom_l2"])
     assert looks == style.looks(agent_of)  # the same in every figure
 
 
-def test_many_agents_keep_their_labels_and_distinct_looks(tmp_path, monkeypatch):
-    """Twelve agents: every figure's legend and every table names each by the label its runs logged, each agent
-    has one look in all figures, no two agents look alike, and the legends fit the column."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    log_many_agents(MlflowClient(uri), "many")
+def spy_legends(monkeypatch) -> dict:
+    """Stem -> the legend entries of that figure: (label, colour, dash pattern); and under '<stem>:grey' the
+    figure's lines drawn in style.GREY."""
     drawn, save = {}, figures.save
 
-    def spy(fig, out, stem):  # the legend entries of every figure: (label, colour, dash pattern)
+    def spy(fig, out, stem):
         legends = [leg for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg is not None]
         drawn[stem] = [(text.get_text(), to_hex(handle.get_color()), handle._unscaled_dash_pattern)
                        for leg in legends for text, handle in zip(leg.get_texts(), leg.legend_handles)]
+        drawn[f"{stem}:grey"] = [line for ax in fig.axes for line in ax.get_lines()
+                                 if to_hex(line.get_color()) == style.GREY.lower()]
+        drawn[f"{stem}:note"] = " ".join(t.get_text() for t in fig.texts).replace("\n", " ")
         return save(fig, out, stem)
 
     monkeypatch.setattr(figures, "save", spy)
+    return drawn
+
+
+# MANY's ranking (log_many_agents): agent k's evaluations at 15k and 20k steps succeed in 0.75 (0.3 + k/20) and
+# 0.3 + k/20, so k >= 8 keeps hovering in both late evaluations, 4 <= k <= 7 in one; among k = 8..11 the IQM final
+# reward (-900 + 0.98 (500 + 25 k) - 60 (k mod 3)) orders 9, 10, 11, 8.
+MANY_RANKED = [list(MANY)[k] for k in (9, 10, 11, 8)]  # the first four
+CURVE_STEMS = {"reward_paper", "episode_length_paper", "dormant_paper", "eval_success_paper", "eval_crash_paper",
+               "performance_profile_paper"}
+
+
+def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, monkeypatch):
+    """Twelve agents, more than a panel shows in colour: every curve figure's legend has the top three by the
+    primary measure, in its order, each with one look in all figures; the other nine are thin grey lines, named in
+    the note; --highlight adds an agent; --top 12 colours all twelve with twelve distinct colours. Every table
+    still names all twelve by the label their runs logged, and the legends fit the column."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_many_agents(MlflowClient(uri), "many")
+    drawn = spy_legends(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many")
     assert code == 0, stdout + stderr
-    curves = {"reward_paper", "episode_length_paper", "dormant_paper", "eval_success_paper", "eval_crash_paper",
-              "performance_profile_paper"}
-    assert set(drawn) == curves
-    labels = sorted(MANY.values(), key=str.casefold)  # paper agents first, then by label: here by label only
+    assert CURVE_STEMS <= set(drawn)
+    top = [MANY[a] for a in MANY_RANKED[:3]]
+    assert top == ["DASH warm start", "Hare & Tortoise", "zeta_plain"]
     look = {}
-    for stem, entries in drawn.items():
-        assert [text for text, _, _ in entries] == labels, stem
-        for text, colour, dash in entries:
+    for stem in CURVE_STEMS:
+        assert [text for text, _, _ in drawn[stem]] == top, stem
+        for text, colour, dash in drawn[stem]:
             assert look.setdefault(text, (colour, dash)) == (colour, dash), (stem, text)  # one look per agent
+        greyed = sorted(set(MANY.values()) - set(top), key=str.casefold)
+        assert f"Grey, without band: {', '.join(greyed)} (not among the top 3" in drawn[f"{stem}:note"], stem
         width = image.imread(tmp_path / "out" / f"{stem}.png").shape[1]
         assert width <= 1200, f"{stem}.png is {width} px wide: its legend is wider than the column"
-    assert len(set(look.values())) == len(look) == 12, look
-    # no paper agent here: all colours are free, eleven agents get one each, the twelfth a new line style
-    assert len({colour for colour, _ in look.values()}) == len(style.EXTRA) + len(style.FIXED) == 11
+    assert len(drawn["reward_paper:grey"]) == 9  # one thin grey line per greyed agent
+    labels = sorted(MANY.values(), key=str.casefold)  # paper agents first, then by label: here by label only
     for table, column in [("table3.md", "Control policy"), ("summary.md", "Agent"), ("segments.md", "Agent")]:
         assert list(md_table(tmp_path / "out" / table)[column]) == labels, table
     assert set(pd.read_csv(tmp_path / "out" / "summary.csv")["agent"]) == set(MANY)
     tex = (tmp_path / "out" / "table3.tex").read_text()
     assert r"Shrink \& Perturb + PPO & paper &" in tex and r"Reset last layer (10\%) & paper &" in tex
     assert "older label" not in stdout + "".join(p.read_text() for p in (tmp_path / "out").glob("*.md"))
+
+    drawn.clear()
+    code, stdout, stderr = run_report(uri, tmp_path / "hl", "--experiment", "many", "--highlight", "alpha_redo")
+    assert code == 0, stdout + stderr
+    assert [text for text, _, _ in drawn["reward_paper"]] == [*top, MANY["alpha_redo"]]  # ranked last of the four
+
+    drawn.clear()
+    code, stdout, stderr = run_report(uri, tmp_path / "all", "--experiment", "many", "--top", "12")
+    assert code == 0, stdout + stderr
+    for stem in CURVE_STEMS:
+        assert len(drawn[stem]) == 12 and [t for t, _, _ in drawn[stem]][:4] == [MANY[a] for a in MANY_RANKED], stem
+        assert not drawn[f"{stem}:grey"] and "Grey" not in drawn[f"{stem}:note"]
+        for text, colour, dash in drawn[stem]:
+            assert look.setdefault(text, (colour, dash)) == (colour, dash), (stem, text)  # the same look as before
+    # no agent of a fixed colour here: twelve of the palette's thirteen colours, one each
+    assert len({colour for colour, _ in look.values()}) == len(look) == 12, look
 
 
 def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatch):
@@ -822,7 +874,8 @@ def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatc
             expected = 100 * np.mean([reading(key, k, seed, np.linspace(0, 1, 200)) for seed in range(2)], axis=0)
             assert panel["curves"][label] == pytest.approx(expected), (key, label)
         assert ("0 throughout for every agent" in panel["texts"]) == (key == "plasticity/dormant_ratio"), key
-    assert figure["legend"] == ["PPO", "L2 + PPO", "RECOM + L2 PPO"]
+    # the legend in the ranking's order: no evaluations during training, so by the IQM final reward (RECOM's highest)
+    assert figure["legend"] == ["RECOM + L2 PPO", "L2 + PPO", "PPO"]
     note = figure["note"]
     for words in ["Sokar dormant: units with E|h| ≤ τ", "Dead tanh: units with |h| > 0.95 on ≥ 90%",
                   "Signed mean ≈ 0: units with |E h| ≤ 0.2", "not an idle unit",
@@ -866,12 +919,13 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert code == 0, stdout + stderr
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
-                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper"})
+                                 | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
+                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_final"})
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
     assert [p["ylabel"] for p in panels] == ["Sokar dormant,\nτ = 0.025 (%)", "Saturated\nactivations (%)"]
-    assert all(len(p["curves"]) == len(MANY) for p in panels)
+    assert all(len(p["curves"]) == 3 for p in panels)  # the top three in colour, the other nine grey, unlabelled
     note = drawn["dormant_paper"]["note"]
     assert "Sokar dormant" in note and "Saturated" in note and "Dead tanh" not in note and "Signed mean" not in note
     shown = md_table(out / "summary.md")
@@ -903,6 +957,8 @@ def test_labels_fall_back_for_older_stores_never_collide_and_title_panels():
     (["--by", "agent.l2.coef", "--baseline", "agent.learner=sb3"], "--baseline key 'agent.learner' is neither"),
     (["--by", "agent.l2.coef", "--baseline", "agent.l2.coef=0.5"], "no run has agent.l2.coef=0.5 (values: 0.001, 0.01"),
     (["--baseline", "agent=ppo"], "--baseline needs --by"),
+    (["--highlight", "ppo,nope"], "--highlight nope: no finished runs of that agent"),
+    (["--top", "0"], "--top 0: must be at least 1"),
 ])
 def test_by_and_baseline_mistakes_are_one_error_line_and_exit_1(store, tmp_path, args, message):
     code, _, stderr = run_report(store, tmp_path / "out", "--experiment", EXPERIMENT, *args)
@@ -1070,3 +1126,150 @@ def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):
     code, _, stderr = run_report(uri, tmp_path / "bad", "--experiment", "pick", "--agents", "l2,nope")
     lines = stderr.strip().splitlines()
     assert code == 1 and len(lines) == 1 and "--agents nope: no finished runs" in lines[0] and "l2, ppo" in lines[0]
+
+
+# -- figures for many agents and arms (issue 34) ---------------------------------------------------------------
+
+ARM_AGENTS = [a for a in style.AGENT_COLOURS if a != "reset_all"]  # the twelve agents of conf/agent
+
+
+def log_arms(client: MlflowClient, experiment: str) -> None:
+    """Experiment ``experiment``: the twelve agents of conf/agent (agent i = ARM_AGENTS[i]) in two layouts
+    (env.n_envs 1 and 16), two seeds, evaluations every 50 steps to 1200, the 12 after step 600 'late'. Agent i
+    keeps hovering in i of 12 late evaluations with 1 env and in 11 - i with 16; its final reward is -100 + i with
+    1 env and -99.5 + 11 - i with 16 (so the pooled ranking has no ties)."""
+    exp_id = client.create_experiment(experiment)
+    steps = np.arange(50, 1201, 50)
+    for i, agent in enumerate(ARM_AGENTS):
+        for n_envs, keeps, reward in (("1", i, -100.0 + i), ("16", 11 - i, -99.5 + 11 - i)):
+            for seed in range(2):
+                run_id = client.create_run(exp_id, tags={"agent": agent, "wind": "paper", "seed": str(seed),
+                                                         "run_name": f"{agent}-{n_envs}-s{seed}"}).info.run_id
+                late = [1.0] * keeps + [0.0] * (12 - keeps)
+                metrics = [Metric("rollout/ep_rew_mean", reward * s / 1200, 0, int(s)) for s in steps]
+                metrics += [Metric("eval/success_rate", v, 0, int(s)) for s, v in zip(steps, [0.0] * 12 + late)]
+                client.log_batch(run_id, metrics=metrics, params=[Param("env.n_envs", n_envs)])
+                client.set_terminated(run_id)
+
+
+def spy_panels(monkeypatch) -> dict:
+    """Stem -> per axes (left to right, top to bottom): its title, its y tick labels bottom to top, its labelled
+    lines (label -> colour) and the number of its grey lines; and the figure's legend labels."""
+    drawn, save = {}, figures.save
+
+    def spy(fig, out, stem):
+        axes = [ax for ax in fig.axes if ax.get_visible()]
+        drawn[stem] = {
+            "axes": [{"title": ax.get_title(),
+                      "yticks": [t.get_text() for _, t in sorted(zip(ax.get_yticks(), ax.get_yticklabels()))],
+                      "lines": {ln.get_label(): to_hex(ln.get_color()) for ln in ax.get_lines()
+                                if not ln.get_label().startswith("_")},
+                      "grey": sum(to_hex(ln.get_color()) == style.GREY.lower() for ln in ax.get_lines())}
+                     for ax in axes],
+            "legend": [t.get_text() for leg in fig.legends for t in leg.get_texts()]}
+        return save(fig, out, stem)
+
+    monkeypatch.setattr(figures, "save", spy)
+    return drawn
+
+
+def test_twelve_agents_in_two_layouts_give_small_multiples_ranked_intervals_and_one_look_each(tmp_path, monkeypatch):
+    """--by env.n_envs with twelve agents: one panel per layout side by side. The interval figure sorts each panel
+    by its own ranking (layout 1: agent 11 on top; layout 16: agent 0). The curves colour the top three of each
+    panel (agents 9-11 and 0-2), PPO (agent 0) and the --highlight agent (layer_norm), each in its own colour
+    (style.AGENT_COLOURS) in both panels, the legend in ranking order; the other five are grey in both panels."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_arms(MlflowClient(uri), "arms")
+    drawn = spy_panels(monkeypatch)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "arms", "--by", "env.n_envs",
+                                      "--highlight", "layer_norm")
+    assert code == 0, stdout + stderr
+    labels = {a: conditions.agent_labels(load_arm_runs(uri)).get(a, a) for a in ARM_AGENTS}
+    one, sixteen = drawn["interval_keeps_hovering"]["axes"]
+    assert (one["title"], sixteen["title"]) == ("wind paper, n_envs=1 (2 seeds)", "wind paper, n_envs=16 (2 seeds)")
+    assert one["yticks"] == [labels[a] for a in ARM_AGENTS]  # bottom to top: agent 0 ... agent 11 (the best)
+    assert sixteen["yticks"] == [labels[a] for a in reversed(ARM_AGENTS)]
+    coloured = [ARM_AGENTS[i] for i in (0, 1, 2, 7, 9, 10, 11)]
+    # pooled ranking: keeps 11/12 (agent 0 in 16 envs, reward -88.5; agent 11 in 1 env, -89), 10/12, 9/12, ...
+    ranked = [ARM_AGENTS[i] for i in (0, 11, 1, 10, 2, 9, 7)]
+    for stem in ("reward_paper", "eval_success_paper", "performance_profile_paper"):
+        figure = drawn[stem]
+        assert [ax["title"] for ax in figure["axes"]] == ["n_envs=1", "n_envs=16"], stem
+        assert figure["legend"] == [labels[a] for a in ranked], stem
+        for ax in figure["axes"]:
+            assert ax["lines"] == {labels[a]: style.AGENT_COLOURS[a].lower() for a in coloured}, stem
+            assert ax["grey"] >= 5, stem  # the other five agents (markers of sparse curves may add more)
+    assert drawn["reward_paper"]["axes"][0]["grey"] == 5
+    for stem, figure in drawn.items():  # no two series of a figure look alike
+        colours = [c for ax in figure["axes"] for c in ax["lines"].values()]
+        series = {(label, c) for ax in figure["axes"] for label, c in ax["lines"].items()}
+        assert len({c for _, c in series}) == len({label for label, _ in series}), stem
+    width = image.imread(tmp_path / "out" / "reward_paper.png").shape[1]
+    assert width <= 2200, "both columns at most"
+
+
+def load_arm_runs(uri: str) -> pd.DataFrame:
+    client = MlflowClient(uri)
+    runs, _ = load.load_runs(client, client.get_experiment_by_name("arms").experiment_id)
+    return runs
+
+
+def test_intervals_are_the_seed_mean_with_its_t_interval_and_the_iqm_with_its_bootstrap():
+    from sweep.report import intervals
+
+    values = [0.0, 0.5, 1.0]
+    half = t_dist.ppf(0.975, 2) * np.std(values, ddof=1) / np.sqrt(3)
+    assert intervals.estimate(values, "mean") == pytest.approx((0.5, 0.5 - half, 0.5 + half, 3))
+    assert intervals.estimate([0.4, np.nan], "mean") == (0.4, 0.4, 0.4, 1)  # one seed: a point, no interval
+    rewards = [-300.0, -250.0, -100.0, -90.0, -80.0, -20.0, 0.0, 10.0]
+    point, lo, hi, n = intervals.estimate(rewards, "iqm")
+    assert point == pytest.approx(trim_mean(rewards, 0.25)) and (lo, hi) == stats.iqm_ci(rewards)[1:] and n == 8
+
+
+def test_interval_rows_are_drawn_as_rliable_draws_them():
+    """One panel's rows: the same bars (x, width, y, height) and point ticks as rliable's plot_interval_estimates."""
+    from matplotlib import pyplot as plt
+    from rliable import plot_utils
+
+    from sweep.report import intervals
+
+    rows = {"a": (0.2, 0.1, 0.35), "b": (0.5, 0.45, 0.7), "c": (0.9, 0.8, 0.95)}
+    colours = dict(zip(rows, ["#D55E00", "#0072B2", "#009E73"]))
+    fig, theirs = plot_utils.plot_interval_estimates(
+        {a: np.array([p]) for a, (p, _, _) in rows.items()},
+        {a: np.array([[lo], [hi]]) for a, (_, lo, hi) in rows.items()}, ["m"], algorithms=list(rows), colors=colours)
+    _, ours = plt.subplots()
+    for y, (a, (p, lo, hi)) in enumerate(rows.items()):
+        intervals._row(ours, y, p, lo, hi, colours[a])
+
+    def drawn(ax):
+        bars = [(r.get_x(), r.get_width(), r.get_y(), r.get_height(), to_hex(r.get_facecolor())) for r in ax.patches]
+        ticks = [np.asarray(c.get_segments()).round(12).tolist() for c in ax.collections]
+        return bars, ticks
+    assert drawn(ours) == drawn(theirs)
+    plt.close("all")
+
+
+def test_the_palette_keeps_thirteen_agents_apart_for_colour_blind_readers():
+    """Every pair of style.PALETTE differs by at least style.MIN_DELTA_E (CIE76 ΔE in CIELAB, D65) for normal
+    vision and as seen with deuteranopia and protanopia (Machado et al. 2009, severity 1); grey stands apart."""
+    machado = {"normal": np.eye(3),
+               "deuteranopia": np.array([[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413],
+                                         [-0.011820, 0.042940, 0.968881]]),
+               "protanopia": np.array([[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216],
+                                       [-0.003882, -0.048116, 1.051998]])}
+    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+
+    def lab(hex_colour: str, vision: np.ndarray) -> np.ndarray:
+        srgb = np.array([int(hex_colour[i:i + 2], 16) / 255 for i in (1, 3, 5)])
+        linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+        x = xyz @ np.clip(vision @ linear, 0, 1) / np.array([0.95047, 1.0, 1.08883])
+        f = np.where(x > 0.008856, np.cbrt(x), 7.787 * x + 16 / 116)
+        return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+    assert len(set(style.PALETTE)) == len(style.PALETTE) == 13 and set(ARM_AGENTS) <= set(style.AGENT_COLOURS)
+    for name, vision in machado.items():
+        points = [lab(c, vision) for c in style.PALETTE]
+        closest = min(np.linalg.norm(a - b) for i, a in enumerate(points) for b in points[i + 1:])
+        assert closest >= style.MIN_DELTA_E, (name, closest)
+        assert min(np.linalg.norm(lab(style.GREY, vision) - p) for p in points) >= 10, name

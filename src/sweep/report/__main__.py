@@ -21,11 +21,12 @@ import numpy as np
 
 
 def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
-          baseline: str | None = None, at: list[int] = (), agents: list[str] = (), vs: list[str] = ()) -> Path:
+          baseline: str | None = None, at: list[int] = (), agents: list[str] = (), vs: list[str] = (),
+          highlight: list[str] = (), top: int = 3) -> Path:
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
-    from sweep.report import conditions, figures, load, stats, style, tables
+    from sweep.report import conditions, figures, highlight as emphasis, intervals, load, stats, style, tables
 
     uri = load.tracking_uri()
     try:
@@ -45,10 +46,14 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             raise load.ReportError(f"--agents {','.join(unknown)}: no finished runs of experiment {exp_name!r}; it has "
                                    f"{', '.join(sorted(set(runs['agent'])))}")
         runs = runs[runs["agent"].isin(agents)].reset_index(drop=True)
-    unknown = sorted(set(vs) - set(runs["agent"]))
-    if unknown:
-        raise load.ReportError(f"--vs {','.join(unknown)}: no finished runs of that agent in experiment {exp_name!r}"
-                               f"{' among --agents' if agents else ''}; it has {', '.join(sorted(set(runs['agent'])))}")
+    for flag, names in (("--vs", vs), ("--highlight", highlight)):
+        unknown = sorted(set(names) - set(runs["agent"]))
+        if unknown:
+            raise load.ReportError(f"{flag} {','.join(unknown)}: no finished runs of that agent in experiment "
+                                   f"{exp_name!r}{' among --agents' if agents else ''}; it has "
+                                   f"{', '.join(sorted(set(runs['agent'])))}")
+    if top < 1:
+        raise load.ReportError(f"--top {top}: must be at least 1 (the conditions of each panel drawn in colour)")
     runs, conds = conditions.build(runs, list(by))
     base = conditions.parse_baseline(baseline, conds) if baseline is not None else None
 
@@ -64,16 +69,20 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         if len(lacking):
             print(f"sweep.report: missing: {key} history in {', '.join(lacking)}")
     style.apply()
+    per_run, late = stats.per_run_curve_stats(histories), stats.late_evaluations(histories)
+    shown = emphasis.choose(emphasis.ranking(runs, per_run, late), runs, conds, top, list(highlight))
+    per_run_all = runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
     written = []
+    for name in intervals.MEASURES:
+        written += intervals.interval_figure(per_run_all, name, conds, out_dir)
     for wind in sorted(runs["wind"].unique()):
         for stem in figures.CURVES:
-            written += figures.curve_figure(runs, histories, wind, stem, conds, out_dir)
-
-    late = stats.late_evaluations(histories)
+            written += figures.curve_figure(runs, histories, wind, stem, conds, shown, out_dir)
     for wind in sorted(runs["wind"].unique()):
-        written += figures.performance_profile(runs, late, wind, conds, out_dir)
+        written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
+    picked = picked[[shown.is_coloured(wind, conds.agent(c)) for c in picked.index]]
     if policy != "final":
         print(f"sweep.report: note: no run trained with wind {wind!r} evaluated its final policy (eval.policy=best): "
               f"the flight figures show the {figures.POLICY_NAMES[policy]}")
@@ -90,7 +99,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
-    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs)
+    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))
@@ -134,11 +143,18 @@ def main(argv: list[str] | None = None) -> int:
                         help="also write versus.md/.csv: every agent against each of these reference agents on the "
                              "leaderboard's primary measure (P(> reference) and the difference of means, each with "
                              "its 95%% CI), e.g. ppo,l2_lr_decay,ppo_target_kl")
+    parser.add_argument("--highlight", metavar="NAME[,NAME...]", type=lambda s: [a for a in s.split(",") if a],
+                        default=[], help="with more than 6 agents in a panel, draw these agents in colour with "
+                        "their bands too (besides PPO, reset_all and the --top agents of each panel; the rest grey)")
+    parser.add_argument("--top", type=int, default=3, metavar="N",
+                        help="with more than 6 agents in a panel, the N best of each panel by the leaderboard's "
+                             "primary measure are drawn in colour (default 3)")
     args = parser.parse_args(argv)
     from sweep.report.load import ReportError
 
     try:
-        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents, args.vs)
+        out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents, args.vs,
+                    args.highlight, args.top)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

@@ -6,10 +6,15 @@ mode=decoupled)" (a key is shown by its last path component, more components whe
 A setting of a component the run switched off (an enclosing ``enabled`` param is false, e.g. ``agent.l2.coef`` of
 a PPO run, whose ``agent.l2.enabled`` is False) does not apply: it is ``NA``, left out of the label, and does not
 split the agent's runs.
+
+Figures draw the conditions in panels (``Conditions.panels``). With several agents, the ``--by`` values are
+small multiples: one panel per value (e.g. one per layout), each agent one series labelled and coloured as the agent
+in every panel; a condition whose value does not apply (NA) appears in every panel. With one agent, its
+conditions are the series of one panel (what compares them, e.g. SB3 against JAX), each with a look of its own.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pandas as pd
 
@@ -53,11 +58,14 @@ def _value_order(v: str) -> tuple:
 class Conditions:
     """The conditions of a report: ``table`` has one row per condition (index: its label; columns: agent and
     the --by keys), in display order; ``looks`` maps a label to its (colour, line style); ``labels`` an agent to
-    its label (a condition's label without the --by values)."""
+    its label (a condition's label without the --by values); ``split``: the --by values are panels (several
+    agents), not series of one panel; ``short``: each --by key as the labels show it."""
     by: list[str]
     table: pd.DataFrame
     looks: dict[str, tuple]
     labels: dict[str, str]
+    split: bool = False
+    short: dict[str, str] = field(default_factory=dict)
 
     @property
     def order(self) -> list[str]:
@@ -68,6 +76,30 @@ class Conditions:
 
     def dash(self, cond: str):
         return self.looks[cond][1]
+
+    def agent(self, cond: str) -> str:
+        return self.table.loc[cond, "agent"]
+
+    def series(self, cond: str) -> str:
+        """A condition's legend entry: its agent's label where panels carry the --by values, else its own label."""
+        return self.labels[self.agent(cond)] if self.split else cond
+
+    def panels(self, present) -> list[tuple[str, list[str]]]:
+        """(title, conditions in display order) of each panel that draws the conditions ``present``: one untitled
+        panel, or with ``split`` one per --by value (in value order), titled e.g. 'n_envs=16', a condition whose
+        value does not apply (NA) in every panel whose other values it matches."""
+        shown = [c for c in self.order if c in set(present)]
+        if not self.split:
+            return [("", shown)]
+        values = {c: tuple(self.table.loc[c, self.by]) for c in shown}
+        keys = sorted({v for v in values.values() if NA not in v}, key=lambda v: [_value_order(x) for x in v])
+
+        def fits(v, key):
+            return all(x == k or x == NA for x, k in zip(v, key))
+        keys += sorted({v for v in values.values() if not any(fits(v, k) for k in keys)},
+                       key=lambda v: [_value_order(x) for x in v])
+        return [(", ".join(f"{self.short[k]}={x}" for k, x in zip(self.by, key) if x != NA),
+                 [c for c in shown if fits(values[c], key)]) for key in keys]
 
 
 def build(runs: pd.DataFrame, by: list[str]) -> tuple[pd.DataFrame, Conditions]:
@@ -81,7 +113,11 @@ def build(runs: pd.DataFrame, by: list[str]) -> tuple[pd.DataFrame, Conditions]:
     table.index = [label[row["agent"]] + _suffix(row, by, short) for _, row in table.iterrows()]
     labels = {tuple(row[fields]): cond for cond, row in table.iterrows()}
     runs = runs.assign(condition=[labels[tuple(r)] for r in runs[fields].itertuples(index=False)])
-    return runs, Conditions(by, table, style.looks(dict(zip(table.index, table["agent"]))), label)
+    split = bool(by) and table["agent"].nunique() > 1
+    series = dict(zip(table["agent"], table["agent"])) if split else dict(zip(table.index, table["agent"]))
+    look = style.looks(series)
+    looks = {cond: look[agent if split else cond] for cond, agent in table["agent"].items()}
+    return runs, Conditions(by, table, looks, label, split, short)
 
 
 def agent_labels(runs: pd.DataFrame) -> dict[str, str]:

@@ -13,6 +13,7 @@ from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 from sweep import metrics
 from sweep.metrics import Curve
 from sweep.report import load, stats, style
+from sweep.report.highlight import Highlight
 
 
 # File stem (figure <stem>_<wind>) -> its panels, top to bottom (sweep.metrics.CURVES). A figure is written for a
@@ -96,98 +97,155 @@ def thresholds(sub: pd.DataFrame) -> dict[str, str]:
     return text
 
 
-def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: str, conds, out: Path) -> list[Path]:
-    """Figure <stem>_<wind>: per condition the mean over seeds with a 95% bootstrap band, one panel per Curve."""
+def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: str, conds,
+                 highlight: Highlight, out: Path) -> list[Path]:
+    """Figure <stem>_<wind>: per condition the mean over seeds with a 95% bootstrap band; a row of panels per
+    Curve, a column per panel of ``conds.panels`` (small multiples of the --by values, shared axes); the agents
+    ``highlight`` does not colour thin and grey, without band or legend entry."""
     sub = runs[runs["wind"] == wind]
     mine = histories[histories["run_id"].isin(sub["run_id"])]
-    panels = [(c, mine[mine["key"] == c.key]) for c in CURVES[stem]]
-    if not has_data(*panels[0]):
+    rows = [(c, mine[mine["key"] == c.key]) for c in CURVES[stem]]
+    if not has_data(*rows[0]):
         return []
-    panels = [p for p in panels if has_data(*p)]
-    x_max = max(float(h["step"].max()) for _, h in panels)
-    step = PANEL_STEP[len(panels) <= 3]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(style.COLUMN_WIDTH, 2.3 + step * (len(panels) - 1)),
-                             sharex=True, squeeze=False)
-    axes, seeds = axes[:, 0], []
+    rows = [r for r in rows if has_data(*r)]
+    panels = conds.panels(sub["condition"])
+    x_max = max(float(h["step"].max()) for _, h in rows)
+    step = PANEL_STEP[len(rows) <= 3]
+    fig, axes = plt.subplots(len(rows), len(panels), sharex=True, sharey="row", squeeze=False,
+                             figsize=(style.figure_width(len(panels)), 2.3 + step * (len(rows) - 1)))
     spans = wind_changes(sub.iloc[0]["speeds"], sub.iloc[0]["segment_steps"], x_max)
     values = thresholds(sub)
-    for i, (ax, (curve, hist)) in enumerate(zip(axes, panels)):
-        seeds.append(_panel(ax, curve, hist, sub, conds))
-        ax.set_ylabel(curve.ylabel.format(**values))
-        ax.set_xlim(0, x_max * (1.05 if len(stats.common_grid(hist)) == 1 or curve.sparse else 1.0))
-        mark_wind(ax, spans, speeds=i == 0)
-    timestep_axis(axes[-1], x_max)
-    drop = 0.22 if len(axes) == 1 else 0.39 / (axes[-1].get_position().height * fig.get_figheight())
-    handles, shown = axes[0].get_legend_handles_labels()  # the top panel's conditions, below the last panel
-    n = seeds[0]  # seeds per condition: once in the legend's title if the same for all, else in each label
+    seeds = {}
+    for j, (title, shown) in enumerate(panels):
+        for i, (curve, hist) in enumerate(rows):
+            ax = axes[i, j]
+            seeds.update(_panel(ax, curve, hist, sub[sub["condition"].isin(shown)], conds, highlight, wind))
+            if j == 0:
+                ax.set_ylabel(curve.ylabel.format(**values))
+            ax.set_xlim(0, x_max * (1.05 if len(stats.common_grid(hist)) == 1 or curve.sparse else 1.0))
+            mark_wind(ax, spans, speeds=i == 0)
+        _panel_title(axes[0, j], title, spans)
+        timestep_axis(axes[-1, j], x_max)
+    if len(rows) > 1:
+        fig.align_ylabels(axes[:, 0])
+    n = {conds.series(c): k for c, k in seeds.items()}  # seeds per series: in the title if the same for all
     same = len(set(n.values())) == 1
-    labels = [textwrap.fill(cond if same else f"{cond} (n={n[cond]})", 56, subsequent_indent="  ") for cond in shown]
     if max(n.values()) == 1:
-        title = "one seed per condition" if conds.by else "one seed per agent"
+        title = "one seed per condition" if conds.by and not conds.split else "one seed per agent"
     else:
         title = f"mean over {max(n.values())} seeds; band: 95% bootstrap CI" if same else BAND
-    for ncol in (3, 2, 1):  # as many columns as fit in the figure's width
-        legend = axes[-1].legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -drop), ncol=ncol,
-                                 frameon=False, handlelength=2.5, columnspacing=1.0, title=title)
-        box = legend.get_window_extent(fig.canvas.get_renderer())
-        if box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1:
-            break
-    notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in panels]
-    if any(notes[1:]):  # what each reading is, below the legend, left-aligned with the panels
-        top = box.y0 / fig.bbox.height - 0.04 / fig.get_figheight()  # figure coordinates (savefig's tight bbox
-        fig.text(axes[-1].get_position().x0, top, textwrap.fill(" ".join(n for n in notes if n), 60),  # moves them)
-                 ha="left", va="top", color="0.25")
-    if len(axes) > 1:
-        fig.align_ylabels(axes)
+    notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in rows]
+    _legend(fig, axes, wind, sub, conds, highlight, title, notes if any(notes[1:]) else [],
+            (lambda label: label) if same else (lambda label: f"{label} (n={n[label]})"))
     return save(fig, out, f"{stem}_{wind}")
 
 
-def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds, out: Path) -> list[Path]:
+def _panel_title(ax, title: str, spans) -> None:
+    """A small-multiple panel's title (its --by values), above the wind speeds if the panel shows them."""
+    if title:
+        ax.set_title(title, pad=10 if len(spans) >= 2 else 4)
+
+
+def _legend(fig, axes, wind: str, sub: pd.DataFrame, conds, highlight: Highlight, title: str, notes: list[str],
+            name=lambda label: label) -> None:
+    """One legend below the panels for the coloured series (in ranking order, as many columns as fit the figure's
+    width), then the notes and the greyed agents, left-aligned with the panels."""
+    entries = {}
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    ranked = highlight.ranked(wind, [c for _, shown in conds.panels(sub["condition"]) for c in shown])
+    order = list(dict.fromkeys(conds.series(c) for c in ranked if conds.series(c) in entries))
+    handles = [entries[label] for label in order]
+    labels = [textwrap.fill(name(label), 56, subsequent_indent="  ") for label in order]
+    left, right = axes[-1, 0].get_position(), axes[-1, -1].get_position()
+    drop = 0.39 if axes.shape[0] > 1 or axes[-1, 0].get_xlabel() else 0.3
+    anchor = ((left.x0 + right.x1) / 2, left.y0 - drop / fig.get_figheight())
+    bottom = anchor[1] * fig.bbox.height  # of the legend, in display units (none drawn: below the axis labels)
+    for ncol in range(min(len(handles), 6 if axes.shape[1] > 1 else 3), 0, -1):  # as many columns as fit
+        legend = fig.legend(handles, labels, loc="upper center", bbox_to_anchor=anchor, ncol=ncol, frameon=False,
+                            handlelength=2.5, columnspacing=1.0, title=title)
+        box = legend.get_window_extent(fig.canvas.get_renderer())
+        bottom = box.y0
+        if (box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1) or ncol == 1:
+            break
+        legend.remove()
+    grey = sorted({conds.labels[conds.agent(c)] for c in set(sub["condition"])
+                   if not highlight.is_coloured(wind, conds.agent(c))}, key=str.casefold)
+    if grey:
+        notes = [*notes, f"Grey, without band: {', '.join(grey)} (not among the top {highlight.top} of a "
+                         "panel)."]
+    if any(notes):  # below the legend, left-aligned with the panels (figure coordinates: savefig's tight bbox
+        top = bottom / fig.bbox.height - 0.04 / fig.get_figheight()  # moves them)
+        width = 60 if axes.shape[1] == 1 else 125
+        fig.text(left.x0, top, textwrap.fill(" ".join(n for n in notes if n), width), ha="left", va="top",
+                 color="0.25")
+
+
+def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds, highlight: Highlight,
+                        out: Path) -> list[Path]:
     """Figure performance_profile_<wind> (rliable's performance profile): per condition, the share of its runs whose
     mean evaluation success in the second half of training (stats.late_evaluations) exceeds each level, with
-    a 95% bootstrap band over runs; written when runs of the wind evaluated during training."""
+    a 95% bootstrap band over runs, a panel per panel of ``conds.panels``; written when runs of the wind
+    evaluated during training."""
     sub = runs[runs["wind"] == wind].merge(late, on="run_id")
     if sub.empty:
         return []
     taus = np.linspace(0.0, 1.0, 101)
-    fig, ax = plt.subplots(figsize=(style.COLUMN_WIDTH, 2.3))
+    panels = conds.panels(sub["condition"])
+    fig, axes = plt.subplots(1, len(panels), sharey="row", squeeze=False,
+                             figsize=(style.figure_width(len(panels)), 2.3))
     n = {}
-    for cond in [c for c in conds.order if c in set(sub["condition"])]:
-        scores = sub.loc[sub["condition"] == cond, "late_success"]
-        n[cond] = len(scores)
-        point, lo, hi = stats.performance_profile(scores, taus)
-        ax.plot(100 * taus, 100 * point, color=conds.color(cond), linestyle=conds.dash(cond), drawstyle="steps-post",
-                label=cond)
-        if np.isfinite(lo).any():
-            ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=0.15, step="post", lw=0)
-    ax.set_xlabel("Success level τ (%)")
-    ax.set_ylabel("Runs whose mean late\nsuccess exceeds τ (%)")
-    ax.set_xlim(0, 100)
-    ax.set_ylim(-3, 103)
+    for j, (title, shown) in enumerate(panels):
+        ax = axes[0, j]
+        for cond in _back_to_front(shown, conds, highlight, wind):
+            scores = sub.loc[sub["condition"] == cond, "late_success"]
+            n[cond] = len(scores)
+            point, lo, hi = stats.performance_profile(scores, taus)
+            if not highlight.is_coloured(wind, conds.agent(cond)):
+                ax.plot(100 * taus, 100 * point, color=style.GREY, linewidth=0.6, drawstyle="steps-post", zorder=1)
+                continue
+            ax.plot(100 * taus, 100 * point, color=conds.color(cond), linestyle=conds.dash(cond),
+                    drawstyle="steps-post", label=conds.series(cond), zorder=3)
+            if np.isfinite(lo).any():
+                ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=0.15, step="post",
+                                lw=0, zorder=2)
+        ax.set_xlabel("Success level τ (%)")
+        ax.set_xlim(0, 100)
+        ax.set_ylim(-3, 103)
+        _panel_title(ax, title, [])
+    axes[0, 0].set_ylabel("Runs whose mean late\nsuccess exceeds τ (%)")
     runs_text = f"{max(n.values())} runs each" if len(set(n.values())) == 1 else "runs: " + ", ".join(map(str, n.values()))
-    title = f"late = second half of training; {runs_text}; band: 95% bootstrap CI"
-    for ncol in (3, 2, 1):  # as many columns as fit in the figure's width
-        legend = ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=ncol, frameon=False,
-                           handlelength=2.5, columnspacing=1.0, title=textwrap.fill(title, 60))
-        box = legend.get_window_extent(fig.canvas.get_renderer())
-        if box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1:
-            break
+    title = textwrap.fill(f"late = second half of training; {runs_text}; band: 95% bootstrap CI", 60)
+    _legend(fig, axes, wind, sub, conds, highlight, title, [])
     return save(fig, out, f"performance_profile_{wind}")
 
 
-def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> dict[str, int]:
-    """Draw one Curve for each condition of ``sub``; returns condition -> seeds drawn."""
+def _back_to_front(shown: list[str], conds, highlight: Highlight, wind: str) -> list[str]:
+    """The grey conditions first (drawn below), then the coloured ones by rank, best last (drawn on top)."""
+    grey = [c for c in shown if not highlight.is_coloured(wind, conds.agent(c))]
+    return grey + highlight.ranked(wind, [c for c in shown if c not in grey])[::-1]
+
+
+def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds, highlight: Highlight,
+           wind: str) -> dict[str, int]:
+    """Draw one Curve for each condition of ``sub`` (a coloured one with its band, a greyed one thin without);
+    returns condition -> seeds drawn."""
     grid = np.unique(hist["step"].to_numpy(dtype=float)) if curve.sparse else stats.common_grid(hist)
     seeds = {}
-    for cond in [c for c in conds.order if c in set(sub["condition"])]:
+    present = [c for c in conds.order if c in set(sub["condition"])]
+    for cond in _back_to_front(present, conds, highlight, wind):
         matrix = stats.aligned(hist, curve.key, sub.loc[sub["condition"] == cond, "run_id"], grid) * curve.scale
         if not len(matrix):
             continue
         mean, lo, hi, _ = stats.mean_band(matrix)
-        ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2,
-                marker="o" if len(grid) == 1 or curve.sparse else None, markersize=3,
-                label=cond)
-        ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0)
+        marker = "o" if len(grid) == 1 or curve.sparse else None
+        if highlight.is_coloured(wind, conds.agent(cond)):
+            ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2, marker=marker,
+                    markersize=3, label=conds.series(cond), zorder=3)
+            ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0, zorder=2)
+        else:
+            ax.plot(grid, mean, color=style.GREY, linewidth=0.6, marker=marker, markersize=1.5, zorder=1)
         seeds[cond] = len(matrix)
     if curve.logy:
         ax.set_yscale("log")
@@ -196,8 +254,9 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds) -> di
         top = max(1.0, ax.get_ylim()[1])
         ax.set_ylim(-0.03 * top, top)
         if seeds and (hist["value"] == 0).all():  # coinciding curves: say that every one of them is at 0
-            ax.text(0.5, 0.5, f"0 throughout for every {'condition' if conds.by else 'agent'}", ha="center",
-                    va="center", transform=ax.transAxes, color="0.3", bbox={"facecolor": "white", "edgecolor": "none"})
+            ax.text(0.5, 0.5, f"0 throughout for every {'condition' if conds.by and not conds.split else 'agent'}",
+                    ha="center", va="center", transform=ax.transAxes, color="0.3",
+                    bbox={"facecolor": "white", "edgecolor": "none"})
     if curve.ylim:
         ax.set_ylim(*curve.ylim)
     ax.grid(True)

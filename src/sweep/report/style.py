@@ -1,5 +1,13 @@
-"""One look for every figure: agent order, colours and line styles (the same in every figure), column-width
-fonts."""
+"""One look for every figure: agent order, colours and line styles (the same in every figure and every report),
+column-width fonts.
+
+Colours. Every agent of conf/agent/ (and ``reset_all``) has its own colour, fixed by name (AGENT_COLOURS), so an
+agent looks the same in every panel, figure and report. The thirteen colours are Okabe-Ito's and Paul Tol's
+colour-blind-safe sets, chosen so that any two differ by at least MIN_DELTA_E (CIE76 ΔE in CIELAB) for normal vision
+and as simulated for deuteranopia and protanopia (Machado et al. 2009; tests/test_report.py measures it). An agent
+not named here takes the first colour that no agent of the report has; once those run out, colours repeat with
+ROUND_DASHES. Agents a figure does not highlight are drawn thin in GREY (``figures``).
+"""
 from __future__ import annotations
 
 import matplotlib
@@ -8,19 +16,26 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 KNOWN = ["ppo", "l2", "recom_l2"]  # the paper's agents (legend labels: each agent's YAML `label:`, conditions.py)
-# Okabe-Ito (colour-blind safe): fixed colours for the paper's agents, then further ones for other agents (Okabe-Ito,
-# then Tol's wine and olive, grey, brown; no yellow, too faint on white): eleven agents, eleven colours.
-FIXED = {"ppo": "#D55E00", "l2": "#0072B2", "recom_l2": "#009E73"}
-EXTRA = ["#CC79A7", "#E69F00", "#56B4E9", "#000000", "#882255", "#999933", "#999999", "#8C564B"]
-# Line styles too, so that coinciding curves (e.g. RECOM before its first update) stay visible.
+AGENT_COLOURS = {
+    "ppo": "#D55E00", "l2": "#0072B2", "recom_l2": "#009E73",    # the paper's agents (Okabe-Ito)
+    "reset_all": "#000000",                                      # the fresh-network reference
+    "recom_l2_relative": "#882255", "l2_lr_decay": "#E69F00", "l2_lr_decay_8m": "#33BBEE",
+    "ppo_target_kl": "#332288", "layer_norm": "#CC79A7", "cbp_l2": "#117733", "redo": "#EE6677",
+    "shrink_perturb": "#006CD1", "l2_init": "#EE99AA",
+}
+PALETTE = list(AGENT_COLOURS.values())
+MIN_DELTA_E = 14.0  # the palette's smallest pairwise ΔE over normal vision, deuteranopia and protanopia
+GREY = "#CCCCCC"    # the agents a figure does not highlight (thin, no band, no legend entry; ΔE >= 11 from every colour)
+# Line styles of the paper's agents, so that coinciding curves (e.g. RECOM before its first update) stay visible;
+# every other agent is solid.
 DASHES = {"ppo": "-", "l2": (0, (4, 1.5)), "recom_l2": (0, (1.2, 1.2))}
-OTHER_DASH = (0, (6, 1.5, 1.2, 1.5))  # agents without a fixed style
-# Once the conditions have used every free colour, the colours repeat with these (no agent's) dashes, the first
-# ones least like OTHER_DASH.
+OTHER_DASH = "-"
+# Once a report's conditions have used every free colour, the colours repeat with these dashes.
 ROUND_DASHES = [(0, (8, 2)), (0, (0.6, 2)), (0, (3, 1, 1, 1, 1, 1)), (0, (2, 2)), (0, (6, 1, 1, 1, 1, 1, 1, 1)),
                 (0, (10, 1.5, 2, 1.5)), (0, (3, 3)), (0, (1, 1, 4, 1))]
 
 COLUMN_WIDTH = 3.5  # inches (one column of a two-column paper)
+PAGE_WIDTH = 7.16   # inches (both columns)
 RC = {"font.size": 7, "axes.labelsize": 7, "axes.titlesize": 7, "xtick.labelsize": 7, "ytick.labelsize": 7,
       "legend.fontsize": 7, "legend.title_fontsize": 7, "lines.linewidth": 1.0, "axes.linewidth": 0.6,
       "grid.linewidth": 0.4, "grid.alpha": 0.4, "savefig.dpi": 300, "pdf.fonttype": 42,
@@ -38,29 +53,38 @@ def dashes(agent: str):
     return DASHES.get(agent, OTHER_DASH)
 
 
-def looks(agent_of: dict[str, str]) -> dict[str, tuple]:
-    """(colour, line style) of each condition (``agent_of``: condition -> its agent, in display order). The report
-    computes it once from all its conditions, so a condition looks the same in every figure.
+def figure_width(panels: int) -> float:
+    """One column for one panel, both columns for more."""
+    return COLUMN_WIDTH if panels <= 1 else PAGE_WIDTH
 
-    The paper's agents keep their fixed look (a split one: its first condition). Every other condition takes the
-    first look that no condition has yet: one of the EXTRA colours (then those of paper agents absent from the
-    report) with its agent's dash (OTHER_DASH for other agents), or once those run out, each colour with each of
-    ROUND_DASHES in turn. Agents with one condition choose first. No two conditions look alike (up to
-    9 x len(EXTRA) of them).
+
+def looks(agent_of: dict[str, str]) -> dict[str, tuple]:
+    """(colour, line style) of each series (``agent_of``: series -> its agent, in display order; a series is an
+    agent, or one of an agent's --by conditions drawn in the same panel). The report computes it once from all its
+    series, so a series looks the same in every figure.
+
+    An agent's first series takes the agent's own look (AGENT_COLOURS and its dash; an agent not named there the
+    first colour that no agent of the report has). Each further series of the same agent takes the first look no
+    series has yet: a free colour with the agent's dash, then each colour with each of ROUND_DASHES. No two series
+    look alike (up to 9 x 13 of them).
     """
-    out = {}
-    for cond, agent in agent_of.items():
-        if agent in FIXED and agent not in [agent_of[c] for c in out]:
-            out[cond] = (FIXED[agent], dashes(agent))
-    colours = EXTRA + [FIXED[a] for a in FIXED if a not in agent_of.values()]
-    agents = list(agent_of.values())
-    rest = sorted((c for c in agent_of if c not in out), key=lambda c: agents.count(agent_of[c]) > 1)
-    for cond in rest:
+    present = set(agent_of.values())
+    free = [c for c in PALETTE if c not in {AGENT_COLOURS[a] for a in present if a in AGENT_COLOURS}]
+    own, out = {}, {}
+    for agent in dict.fromkeys(agent_of.values()):  # agents in display order
+        if agent in AGENT_COLOURS:
+            own[agent] = (AGENT_COLOURS[agent], dashes(agent))
+        elif free:
+            own[agent] = (free.pop(0), dashes(agent))
+    for series, agent in agent_of.items():
+        if agent in own and own[agent] not in out.values():
+            out[series] = own[agent]
+    for series in [s for s in agent_of if s not in out]:
         used = {colour for colour, _ in out.values()}
-        fresh = [(c, dashes(agent_of[cond])) for c in colours if c not in used]
-        again = [(c, d) for d in ROUND_DASHES for c in colours]
-        out[cond] = next(look for look in fresh + again if look not in out.values())
-    return {cond: out[cond] for cond in agent_of}
+        fresh = [(c, dashes(agent_of[series])) for c in free + PALETTE if c not in used]
+        again = [(c, d) for d in ROUND_DASHES for c in PALETTE]
+        out[series] = next(look for look in fresh + again if look not in out.values())
+    return {series: out[series] for series in agent_of}
 
 
 def apply() -> None:

@@ -346,11 +346,12 @@ def eval_wind(runs: pd.DataFrame) -> str:
 
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
                  baseline: tuple[str, str] | None = None, at: list[int] = (),
-                 late: pd.DataFrame | None = None, vs: list[str] = ()) -> list[Path]:
+                 late: pd.DataFrame | None = None, vs: list[str] = (),
+                 per_run: pd.DataFrame | None = None) -> list[Path]:
     """Every table of the report; ``late`` is stats.late_evaluations(histories), computed by the caller once for
     the leaderboard and the performance profile (computed here when not given); ``vs``: reference agents of
-    versus.md (none: no such table)."""
-    per_run = stats.per_run_curve_stats(histories)
+    versus.md (none: no such table); ``per_run`` is stats.per_run_curve_stats(histories), likewise."""
+    per_run = stats.per_run_curve_stats(histories) if per_run is None else per_run
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
     policies = ("final = the policy at the end of training (eval/*); best = the policy kept during training at its "
