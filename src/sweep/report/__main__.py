@@ -1,5 +1,9 @@
 """CLI: build every figure and table of one experiment; errors are one line on stderr and exit code 1.
 
+Interval-estimate figures first (intervals.py): interval_keeps_hovering, interval_success_final,
+interval_success_best, interval_final_reward, one panel per arm (wind x --by values). The curves below draw a
+--by split as small multiples (conditions.Conditions.panels) and, with more than 6 agents in a panel, only the
+--top agents of each panel, PPO and --highlight agents in colour (highlight.py).
 Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (the policy's readings, a panel
 each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean ≈ 0, saturated
 activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
@@ -82,7 +86,11 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
-    picked = picked[[shown.is_coloured(wind, conds.agent(c)) for c in picked.index]]
+    coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]
+    if not all(coloured):
+        print(f"sweep.report: note: the flight figures show the agents the curves of wind {wind!r} draw in colour "
+              f"(--top {top}, PPO, --highlight), not the {len(coloured) - sum(coloured)} grey conditions")
+    picked = picked[coloured]
     if policy != "final":
         print(f"sweep.report: note: no run trained with wind {wind!r} evaluated its final policy (eval.policy=best): "
               f"the flight figures show the {figures.POLICY_NAMES[policy]}")

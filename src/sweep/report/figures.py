@@ -143,7 +143,7 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
 def _panel_title(ax, title: str, spans) -> None:
     """A small-multiple panel's title (its --by values), above the wind speeds if the panel shows them."""
     if title:
-        ax.set_title(title, pad=10 if len(spans) >= 2 else 4)
+        ax.set_title(title, pad=13 if len(spans) >= 2 else 4)
 
 
 def _legend(fig, axes, wind: str, sub: pd.DataFrame, conds, highlight: Highlight, title: str, notes: list[str],
@@ -198,6 +198,7 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     n = {}
     for j, (title, shown) in enumerate(panels):
         ax = axes[0, j]
+        alpha = band_alpha(shown, conds, highlight, wind, 0.15)
         for cond in _back_to_front(shown, conds, highlight, wind):
             scores = sub.loc[sub["condition"] == cond, "late_success"]
             n[cond] = len(scores)
@@ -208,7 +209,7 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
             ax.plot(100 * taus, 100 * point, color=conds.color(cond), linestyle=conds.dash(cond),
                     drawstyle="steps-post", label=conds.series(cond), zorder=3)
             if np.isfinite(lo).any():
-                ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=0.15, step="post",
+                ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=alpha, step="post",
                                 lw=0, zorder=2)
         ax.set_xlabel("Success level τ (%)")
         ax.set_xlim(0, 100)
@@ -216,9 +217,17 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
         _panel_title(ax, title, [])
     axes[0, 0].set_ylabel("Runs whose mean late\nsuccess exceeds τ (%)")
     runs_text = f"{max(n.values())} runs each" if len(set(n.values())) == 1 else "runs: " + ", ".join(map(str, n.values()))
-    title = textwrap.fill(f"late = second half of training; {runs_text}; band: 95% bootstrap CI", 60)
+    title = textwrap.fill(f"late = second half of training; {runs_text}; band: 95% bootstrap CI",
+                          60 if len(panels) == 1 else 125)
     _legend(fig, axes, wind, sub, conds, highlight, title, [])
     return save(fig, out, f"performance_profile_{wind}")
+
+
+def band_alpha(shown: list[str], conds, highlight: Highlight, wind: str, alpha: float) -> float:
+    """A band's opacity: ``alpha`` for up to 3 coloured series in a panel, half of it for more (overlapping bands
+    would wash into one colour)."""
+    coloured = sum(highlight.is_coloured(wind, conds.agent(c)) for c in shown)
+    return alpha if coloured <= 3 else alpha / 2
 
 
 def _back_to_front(shown: list[str], conds, highlight: Highlight, wind: str) -> list[str]:
@@ -234,6 +243,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds, highl
     grid = np.unique(hist["step"].to_numpy(dtype=float)) if curve.sparse else stats.common_grid(hist)
     seeds = {}
     present = [c for c in conds.order if c in set(sub["condition"])]
+    alpha = band_alpha(present, conds, highlight, wind, 0.2)
     for cond in _back_to_front(present, conds, highlight, wind):
         matrix = stats.aligned(hist, curve.key, sub.loc[sub["condition"] == cond, "run_id"], grid) * curve.scale
         if not len(matrix):
@@ -243,7 +253,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds, highl
         if highlight.is_coloured(wind, conds.agent(cond)):
             ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2, marker=marker,
                     markersize=3, label=conds.series(cond), zorder=3)
-            ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=0.2, linewidth=0, zorder=2)
+            ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=alpha, linewidth=0, zorder=2)
         else:
             ax.plot(grid, mean, color=style.GREY, linewidth=0.6, marker=marker, markersize=1.5, zorder=1)
         seeds[cond] = len(matrix)
@@ -293,7 +303,7 @@ def flights_3d(trajs: dict, picked: pd.DataFrame, wind: str, conds, out: Path, p
     rows = int(np.ceil(len(shown) / cols))
     spare = rows * cols > len(shown)  # the legend goes into the empty panel, else below the panels
     legend_h = 0.05 if spare else 0.6  # inches below the panels for the legend
-    titles = {c: textwrap.fill(f"{c}, seed {picked.loc[c, 'seed']}", 34)
+    titles = {c: textwrap.fill(f"{c}, seed {picked.loc[c, 'seed']}", 28)
               + f"\nsuccess {100 * np.mean(trajs[c]['success']):.0f}%" for c in shown}
     extra = max(t.count("\n") for t in titles.values()) - 1  # title lines beyond two (long --by labels)
     fig = plt.figure(figsize=(style.COLUMN_WIDTH, (1.75 + 0.12 * extra) * rows + 0.1 + legend_h))

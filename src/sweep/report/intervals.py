@@ -110,8 +110,6 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
         ppo = mine[mine["agent"] == "ppo"]
         if len(ppo):
             ax.axvline(ppo["point"].iloc[0], color="0.3", linestyle="--", linewidth=0.7, zorder=0)
-            ax.text(ppo["point"].iloc[0], 1.0, " PPO", transform=ax.get_xaxis_transform(), ha="left", va="top",
-                    color="0.3", fontsize=6)
         ax.set_yticks(ys, [textwrap.fill(label, LABEL_WIDTH) for label in mine["label"]])
         ax.set_ylim(-0.6, rows - 0.4)
         ax.tick_params(axis="y", length=0)
@@ -121,5 +119,7 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
         ax.set_title(f"{panel} ({'/'.join(map(str, seeds))} seeds)")
     if measure.percent:
         axes[0, 0].set_xlim(-3, 103)
-    fig.supxlabel(textwrap.fill(f"{measure.title}; {STATISTIC[measure.statistic]}", 60 * len(panels)), fontsize=7)
+    reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""
+    fig.supxlabel(textwrap.fill(f"{measure.title}; {STATISTIC[measure.statistic]}{reference}", 60 * len(panels)),
+                  fontsize=7)
     return figures.save(fig, out, f"interval_{name}")
