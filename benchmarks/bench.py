@@ -29,7 +29,11 @@ One table, all rows measured in this run:
 * the remedies study's cadence (``python benchmarks/bench.py study``, also part of ``make bench``): two concurrent
   ``experiment=remedies`` PPO runs of ``STUDY_STEPS`` timesteps (the study's setting: two jobs on two cores) with
   the diagnostics every rollout (``plasticity.every_rollouts=1``, the pilot's) against every 10 (the study's),
-  aggregate timesteps/s over the pair's span, ``REPEATS`` interleaved passes, best kept.
+  aggregate timesteps/s over the pair's span, ``REPEATS`` interleaved passes, best kept;
+* the cost of ``train.portable`` (``python benchmarks/bench.py portable``, also part of ``make bench``): the JAX
+  learner end to end (steady rate from two run lengths, as above), SB3 PPO on the fast backend, the simulator at
+  N=1024 and the plasticity probe, each in a fresh process per mode (sweep.portable.environment), native and
+  portable alternated ``REPEATS`` times, best kept.
 """
 from __future__ import annotations
 
@@ -217,13 +221,15 @@ def _timed_run(overrides: list[str], barrier: str | None = None, parties: int = 
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{tmp}/mlflow.db"
         os.environ["SWEEP_CHECKPOINT_DIR"] = f"{tmp}/checkpoints"
+        from sweep import portable
         from sweep.run import run
         from sweep.tracking import PROJECT_ROOT, ensure_store
 
         ensure_store(os.environ["MLFLOW_TRACKING_URI"], "bench")
         with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
             cfg = compose(config_name="config", overrides=[*overrides, "agent.learner=jax", "tracking.experiment=bench",
-                                                            "train.progress_every_s=1000", "tracking.log_model=false"])
+                                                            "train.progress_every_s=1000", "tracking.log_model=false",
+                                                            f"train.portable={str(portable.active()).lower()}"])
         _file_barrier(barrier, parties)
         t0 = time.perf_counter()
         run(cfg, Path(tmp) / "job")
@@ -345,6 +351,50 @@ def study_rows() -> list[tuple[str, str, str, str, str]]:
              f"{ten / one:.2f}x", "")]
 
 
+PORTABLE_KINDS = ("e2e", "sb3", "sim", "probe")
+
+
+def portable_worker(kind: str) -> dict:
+    """One measurement in this process, in the mode its environment sets (``bench.py portable-worker KIND``)."""
+    if kind == "e2e":  # the JAX learner end to end: the steady rate from two run lengths
+        short, long = e2e_run(E2E_STEPS[0]), e2e_run(E2E_STEPS[1])
+        return {"rate": (long["steps"] - short["steps"]) / (long["wall"] - short["wall"])}
+    if kind == "sb3":
+        return {"rate": ppo_run("fast", 1)["fps"]}
+    if kind == "sim":
+        return {"rate": bench_fast(1024)}
+    return {"rate": 1.0 / probe_seconds()}  # probes per second
+
+
+def portable_rows() -> list[tuple[str, str, str, str, str]]:
+    """train.portable's cost: each measurement in a fresh process per mode (sweep.portable.environment), native
+    and portable alternated REPEATS times, the best of each kept; ratio = portable / native."""
+    import json
+    import subprocess
+
+    from sweep import portable
+
+    names = {"e2e": "JAX learner end to end (experiment=paper), steady ts/s",
+             "sb3": "SB3 PPO, fast backend, 1 env x 2048, ts/s", "sim": "simulator vehicle-steps/s, N=1024",
+             "probe": "plasticity probe (torch, 500 Adam steps) per s"}
+    rates: dict[tuple[str, bool], list[float]] = {}
+    for _ in range(REPEATS):
+        for kind in PORTABLE_KINDS:
+            for mode in (False, True):
+                proc = subprocess.run([sys.executable, __file__, "portable-worker", kind], capture_output=True,
+                                      text=True, env=portable.environment(mode), timeout=1800, check=True)
+                rates.setdefault((kind, mode), []).append(json.loads(proc.stdout.strip().splitlines()[-1])["rate"])
+                print("portable", kind, mode, round(rates[(kind, mode)][-1], 2), flush=True)
+    rows = []
+    for kind in PORTABLE_KINDS:
+        native, port = max(rates[(kind, False)]), max(rates[(kind, True)])
+        rows.append((f"train.portable: {names[kind]} (native vs portable)",
+                     f"{native:,.1f} {[round(r, 1) for r in rates[(kind, False)]]}",
+                     f"{port:,.1f} {[round(r, 1) for r in rates[(kind, True)]]}", f"{port / native:.2f}x",
+                     ">= 0.90x: " + ("met" if port / native >= 0.9 else "MISSED")))
+    return rows
+
+
 def _fresh_pool_map(fn, argss):
     """Run fn(*args) for each args in fresh loky workers, all concurrently; return results in order."""
     from joblib import Parallel, delayed
@@ -373,6 +423,9 @@ def main() -> int:
         return _print_table(rows, t_start, load0)
     if sys.argv[1:] == ["study"]:
         rows += study_rows()
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:] == ["portable"]:
+        rows += portable_rows()
         return _print_table(rows, t_start, load0)
     import numba
 
@@ -484,6 +537,7 @@ def main() -> int:
                  f"<= 1 GB: {ok(worst <= TARGETS['rss_mb'])}"))
     rows += remedy_rows()
     rows += study_rows()
+    rows += portable_rows()
     return _print_table(rows, t_start, load0)
 
 
@@ -506,4 +560,9 @@ def _print_table(rows, t_start: float, load0) -> int:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["portable-worker"]:
+        import json
+
+        print(json.dumps(portable_worker(sys.argv[2])))
+        sys.exit(0)
     sys.exit(main())

@@ -198,7 +198,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "51266123236daad1"   # agent.ppo.lr_decay_timesteps added
+JOB_KEY = "c9f781668d2544b4"   # train.portable added
 
 
 def test_the_resume_key_changes_only_with_the_settings():

@@ -1273,3 +1273,26 @@ def test_the_palette_keeps_thirteen_agents_apart_for_colour_blind_readers():
         closest = min(np.linalg.norm(a - b) for i, a in enumerate(points) for b in points[i + 1:])
         assert closest >= style.MIN_DELTA_E, (name, closest)
         assert min(np.linalg.norm(lab(style.GREY, vision) - p) for p in points) >= 10, name
+
+
+def test_tables_say_when_runs_come_from_different_cpus_or_float_modes(tmp_path):
+    """Two PPO seeds on one CPU in portable mode and two L2 seeds on another in native mode: the summary, Table III
+    and the leaderboard name both; runs of one CPU and mode (or all untagged, older runs) get no such note."""
+    uri = log_late_evaluations(tmp_path, LATE)
+    client = MlflowClient(uri)
+    for run in client.search_runs([client.get_experiment_by_name("lb").experiment_id]):
+        agent = run.data.tags["agent"]
+        client.set_tag(run.info.run_id, "cpu_model", "AMD EPYC")
+        client.set_tag(run.info.run_id, "cpu_flags", "aaaa1111" if agent == "ppo" else "bbbb2222")
+        client.set_tag(run.info.run_id, "portable", "true" if agent == "ppo" else "false")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "lb")
+    assert code == 0, stdout + stderr
+    note = ("made on 2 CPU model / float mode combinations (2 on AMD EPYC (flags aaaa1111) (portable); 2 on AMD EPYC "
+            "(flags bbbb2222) (native))")
+    for table in ("summary.md", "table3.md", "leaderboard.md"):
+        assert note in (tmp_path / "out" / table).read_text(), table
+    assert note in stdout
+    (tmp_path / "plain").mkdir()
+    plain = log_late_evaluations(tmp_path / "plain", LATE)
+    code, stdout, _ = run_report(plain, tmp_path / "out2", "--experiment", "lb")
+    assert code == 0 and "CPU model" not in (tmp_path / "out2" / "summary.md").read_text() + stdout

@@ -139,6 +139,7 @@ class Train:
     torch_threads: int = positive_int()
     checkpoint_every: int = positive_int(" (timesteps)")
     checkpoint_dir: Optional[str] = MISSING
+    portable: bool = MISSING
 
 
 @dataclass

@@ -23,7 +23,7 @@ from stable_baselines3.common.utils import set_random_seed
 from threadpoolctl import threadpool_limits
 
 from sweep.agents import build_learner, build_remedies
-from sweep import metrics
+from sweep import metrics, portable
 from sweep.best_policy import BestPolicies
 from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, settings, validate
@@ -41,7 +41,8 @@ log = logging.getLogger("sweep")
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
     tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.label, "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
-            "learner": cfg.agent.learner, "sweep": "single", "job": "0"}
+            "learner": cfg.agent.learner, "sweep": "single", "job": "0", "portable": str(bool(cfg.train.portable)).lower(),
+            "cpu_model": portable.cpu_model(), "cpu_flags": portable.cpu_flags_hash()}
     if HydraConfig.initialized():
         hc = HydraConfig.get()
         if hc.mode == RunMode.MULTIRUN:
@@ -80,6 +81,10 @@ def job_record(cfg: DictConfig) -> JobRecord:
 def run(cfg: DictConfig, out_dir: Path) -> str:
     """Train and evaluate one agent/wind/seed (continuing its checkpoint if any); returns the MLflow run id."""
     validate(cfg)
+    try:
+        portable.check(cfg.train.portable)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.train.torch_threads)
     # NumPy's BLAS too (diagnostics' SVD): its idle threads spin and take the core from the next update

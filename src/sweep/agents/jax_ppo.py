@@ -36,7 +36,9 @@ import os
 from pathlib import Path
 
 # One CPU thread (as torch: train.torch_threads; see _jax_cpu_client_on_one_thread), and compiled programs cached across runs (~3 s per job).
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
+if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):  # after train.portable's flags, if any
+    os.environ["XLA_FLAGS"] = ("--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1 "
+                               + os.environ.get("XLA_FLAGS", "")).strip()
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path.home() / ".cache" / "sweep" / "jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")

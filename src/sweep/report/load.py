@@ -149,7 +149,11 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
                "wind": tags.get("wind", "?"),
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time,
-               "wall_minutes": (run.info.end_time - run.info.start_time) / 60000 if run.info.end_time else np.nan}
+               "wall_minutes": (run.info.end_time - run.info.start_time) / 60000 if run.info.end_time else np.nan,
+               # what the numbers were made on (runs before train.portable existed: native, CPU unknown)
+               "cpu_model": (f"{tags['cpu_model']} (flags {tags.get('cpu_flags', '?')})" if "cpu_model" in tags
+                             else "unknown CPU"),
+               "float_mode": "portable" if tags.get("portable") == "true" else "native"}
         row.update({short: params.get(key) for key, short in PARAM_KEYS.items()})
         row.update({key: logged.get(key, np.nan) for key in metrics.EVAL_KEYS})
         if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's

@@ -344,6 +344,18 @@ def eval_wind(runs: pd.DataFrame) -> str:
     return f"a constant {' / '.join(f'{v:g}' for v in speeds)} m/s wind" if speeds else "constant wind"
 
 
+def provenance(runs: pd.DataFrame) -> str:
+    """A sentence naming the CPU models and float modes (train.portable) the runs were made on when they differ
+    (in native mode a seed run on another CPU model is another sample); '' when all runs share one."""
+    made = runs.groupby(["cpu_model", "float_mode"]).size()
+    if len(made) < 2:
+        return ""
+    parts = "; ".join(f"{n} on {cpu} ({mode})" for (cpu, mode), n in made.items())
+    return (f"Note: these runs were made on {len(made)} CPU model / float mode combinations ({parts}). In native "
+            "mode a seed run on another CPU model is another sample; portable runs give the same numbers on any "
+            "x86-64 CPU.\n\n")
+
+
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
                  baseline: tuple[str, str] | None = None, at: list[int] = (),
                  late: pd.DataFrame | None = None, vs: list[str] = (),
@@ -360,8 +372,9 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     missing = ("– = not evaluated: runs logged before eval.policy existed or with eval.policy=final have no best "
                "policy's evaluation, runs with eval.policy=best no final policy's; (n=k) = only k of the seeds "
                "evaluated that policy")
+    made = provenance(runs)
     (out / "table3.md").write_text(
-        f"Evaluation under {eval_wind(runs)} (eval.wind_speed; Table III): success rate and per-axis position MSE, "
+        made + f"Evaluation under {eval_wind(runs)} (eval.wind_speed; Table III): success rate and per-axis position MSE, "
         f"mean ± 95% Student-t CI over seeds, of two policies of each run: {policies}. Best taken at = the "
         f"timestep the best policy was kept at (mean over seeds). {missing}. Top seed = the seed whose final "
         f"training reward (mean episode reward over the last {stats.FINAL_FRACTION:.0%} of timesteps) is highest "
@@ -395,7 +408,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         note += (f" Δ IQM vs {key}={value} = IQM of the final reward minus that of the condition with "
                  f"{key}={value} and otherwise the same agent and --by values in the same wind (a setting that does "
                  "not apply to it matches any), 95% percentile-bootstrap CI resampling both conditions' seeds.")
-    (out / "summary.md").write_text(note + "\n\n" + markdown(s_display))
+    (out / "summary.md").write_text(made + note + "\n\n" + markdown(s_display))
     seg_numbers, seg_display = segments(runs, stats.segment_rewards(histories, runs), conds)
     seg_numbers.to_csv(out / "segments.csv", index=False)
     (out / "segments.md").write_text(
@@ -428,7 +441,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         l_numbers, l_display = leaderboard(runs, per_run, late, conds)
         l_numbers.to_csv(out / "leaderboard.csv", index=False)
         (out / "leaderboard.md").write_text(
-            "Leaderboard, sorted by the primary measure: keeps hovering = the share of a run's evaluations in the "
+            made + "Leaderboard, sorted by the primary measure: keeps hovering = the share of a run's evaluations in the "
             f"second half of training (in-training ones and the final one) at >= {stats.HOVER:.0%} success, mean ± "
             "95% Student-t CI over seeds (per seed in the next column); P(> PPO) = rliable's probability that a run "
             "of the agent keeps hovering more than a PPO run in the same wind, 95% bootstrap CI; IQM final reward "
