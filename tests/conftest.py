@@ -1,6 +1,8 @@
 """Shared test helpers: Hydra composition of the real configs and a temporary MLflow store."""
 from __future__ import annotations
 
+import sweep  # noqa: F401  (first: the test process's float mode, train.portable, before NumPy is imported)
+
 import os
 import subprocess
 import sys

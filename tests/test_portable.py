@@ -1,8 +1,8 @@
 """train.portable (sweep/portable.py): the setting reaches torch (MKL, ATen), XLA, numba and NumPy before they
 compute, in a fresh process as `python -m sweep` starts one; the command line decides it; a config asking for the
 other mode is one error line; numba's cache never hands a host-tuned build to a portable run; runs carry the CPU
-and the mode as tags. The bitwise reference histories (tests/test_reference_history.py) are the test that the
-numbers themselves are portable."""
+and the mode as tags. Whether the numbers themselves are equal on two CPU models is not tested here (README,
+Determinism); tests/test_reference_history.py compares them bitwise on the CPU that wrote its file."""
 from __future__ import annotations
 
 import json
@@ -71,26 +71,52 @@ def test_native_mode_from_the_command_line_leaves_every_library_to_the_host():
             assert got["aten"].startswith("AVX512") and got["numpy_v4"] is True
 
 
-def test_the_mode_comes_from_the_switch_then_the_command_line_then_the_config(monkeypatch):
+def test_the_mode_comes_from_the_command_line_then_the_switch_then_the_config(monkeypatch):
     monkeypatch.delenv(portable.SWITCH, raising=False)
     assert portable.requested(["agent=ppo", "train.portable=false", "-m"]) is False
     assert portable.requested(["train.portable=true"]) is True
     assert portable.requested(["train.portable=true,false"]) is True  # a sweep over both: left to check()
     assert portable.requested([]) is True  # conf/config.yaml
-    monkeypatch.setenv(portable.SWITCH, "0")
-    assert portable.requested(["train.portable=true"]) is False
+    monkeypatch.setenv(portable.SWITCH, "0")  # what a parent process decided (a joblib worker's only clue)
+    assert portable.requested([]) is False
+    assert portable.requested(["train.portable=true"]) is True  # the command line wins
+
+
+def test_a_native_child_of_a_portable_parent_drops_the_settings():
+    """A process started from a portable one (this test process, a notebook) with train.portable=false on its
+    command line computes natively: the settings it inherited are removed before any library starts."""
+    parent = portable.environment(True, clean_env())
+    proc = subprocess.run([sys.executable, "-c", PROBE, "train.portable=false"], env=parent, capture_output=True,
+                          text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["active"] is False and got["mkl_branch"] == MKL_CBWR_BRANCH_OFF and got["numba_cpu"] is None
+    assert "--xla_cpu_max_isa=AVX2" not in got["xla_flags"].split()
+
+
+def test_numpy_imported_before_sweep_is_not_portable():
+    """NumPy reads its dispatch setting at import: a script that imports it before sweep is not in portable mode
+    on an AVX-512 CPU, and run() says why."""
+    code = ("import numpy, sweep, sweep.portable as p; print(p.active(), p.numpy_uncapped()); "
+            "p.check(True)")
+    proc = subprocess.run([sys.executable, "-c", code], env=clean_env(), capture_output=True, text=True,
+                          timeout=300)  # nothing set at start: NumPy starts native, then sweep activates
+    if "avx512f" not in Path("/proc/cpuinfo").read_text():
+        pytest.skip("no AVX-512 on this CPU: NumPy's dispatch is x86-64-v3 at most anyway")
+    assert proc.stdout.split()[:2] == ["False", "True"]
+    assert proc.returncode == 1 and "NumPy was imported before sweep: import sweep first" in proc.stderr
 
 
 def test_a_config_asking_for_the_other_mode_is_one_error_line_before_training(tmp_path):
     env = clean_env()
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    proc = subprocess.run([sys.executable, "-m", "sweep", "train.portable=false", "train.total_timesteps=512",
-                           f"hydra.run.dir={tmp_path / 'out'}"],
-                          env={**env, portable.SWITCH: "1", "MLFLOW_TRACKING_URI": uri}, cwd=tmp_path,
+    # a parent decided native (SWEEP_PORTABLE=0), the config (conf/config.yaml) asks for portable
+    proc = subprocess.run([sys.executable, "-m", "sweep", "train.total_timesteps=512", f"hydra.run.dir={tmp_path / 'out'}"],
+                          env={**env, portable.SWITCH: "0", "MLFLOW_TRACKING_URI": uri}, cwd=tmp_path,
                           capture_output=True, text=True, timeout=300)
     lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and lines[-1].startswith("sweep: invalid config: train.portable=false, but this "
-                                                         "process computes in portable mode"), proc.stderr[-2000:]
+    assert proc.returncode == 2 and lines[-1].startswith("sweep: invalid config: train.portable=true, but this "
+                                                         "process computes in native mode"), proc.stderr[-2000:]
     client = MlflowClient(uri)  # no run was started
     assert not client.search_runs([e.experiment_id for e in client.search_experiments()])
 
@@ -132,8 +158,7 @@ def test_a_run_records_the_cpu_and_the_mode_as_tags(tmp_path, monkeypatch):
     import sweep.run
     from conftest import TINY, compose_cfg
 
-    if not portable.active():
-        pytest.skip("this test process is not in portable mode")
+    assert portable.active(), "conftest.py imports sweep first: the test process computes in portable mode"
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     monkeypatch.setenv("SWEEP_CHECKPOINT_DIR", str(tmp_path / "ckpt"))

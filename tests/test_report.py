@@ -1267,7 +1267,8 @@ def test_the_palette_keeps_thirteen_agents_apart_for_colour_blind_readers():
         f = np.where(x > 0.008856, np.cbrt(x), 7.787 * x + 16 / 116)
         return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
 
-    assert len(set(style.PALETTE)) == len(style.PALETTE) == 13 and set(ARM_AGENTS) <= set(style.AGENT_COLOURS)
+    agents = {path.stem for path in (ROOT / "conf" / "agent").glob("*.yaml")}  # every agent a user can pick
+    assert len(set(style.PALETTE)) == len(style.PALETTE) == 13 and agents <= set(style.AGENT_COLOURS), agents
     for name, vision in machado.items():
         points = [lab(c, vision) for c in style.PALETTE]
         closest = min(np.linalg.norm(a - b) for i, a in enumerate(points) for b in points[i + 1:])

@@ -64,8 +64,9 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     out_dir = Path(out) if out else Path("reports") / exp_name
     out_dir.mkdir(parents=True, exist_ok=True)
     print(f"sweep.report: experiment {exp_name!r}: {len(runs)} finished runs from {uri}")
-    if tables.provenance(runs):
-        print("sweep.report: " + tables.provenance(runs).strip())
+    made = tables.provenance(runs)
+    if made:
+        print("sweep.report: " + made.strip())
     for missing in ([] if agents else missing_conditions(runs)):
         print(f"sweep.report: missing: {missing}")
 

@@ -128,15 +128,17 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
         timestep_axis(axes[-1, j], x_max)
     if len(rows) > 1:
         fig.align_ylabels(axes[:, 0])
-    n = {conds.series(c): k for c, k in seeds.items()}  # seeds per series: in the title if the same for all
-    same = len(set(n.values())) == 1
-    if max(n.values()) == 1:
+    same = len(set(seeds.values())) == 1  # seeds per condition: in the title if the same for all
+    n = {}  # else in each legend entry, per panel where a series' conditions differ ("n=3/2")
+    for cond, k in seeds.items():
+        n.setdefault(conds.series(cond), set()).add(k)
+    if max(seeds.values()) == 1:
         title = "one seed per condition" if conds.by and not conds.split else "one seed per agent"
     else:
-        title = f"mean over {max(n.values())} seeds; band: 95% bootstrap CI" if same else BAND
+        title = f"mean over {max(seeds.values())} seeds; band: 95% bootstrap CI" if same else BAND
     notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in rows]
     _legend(fig, axes, wind, sub, conds, highlight, title, notes if any(notes[1:]) else [],
-            (lambda label: label) if same else (lambda label: f"{label} (n={n[label]})"))
+            (lambda label: label) if same else (lambda label: f"{label} (n={'/'.join(map(str, sorted(n[label])))})"))
     return save(fig, out, f"{stem}_{wind}")
 
 

@@ -100,8 +100,9 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
         return []
     panels = list(dict.fromkeys(table["panel"]))
     rows = table.groupby("panel", sort=False).size().max()
+    lines = max(len(textwrap.wrap(label, LABEL_WIDTH)) for label in table["label"])  # a row fits its label
     fig, axes = plt.subplots(1, len(panels), sharex=True, squeeze=False, layout="constrained",
-                             figsize=(style.figure_width(len(panels)), 0.75 + ROW_INCHES * rows))
+                             figsize=(style.figure_width(len(panels)), 0.75 + ROW_INCHES * lines * rows))
     for ax, panel in zip(axes[0], panels):
         mine = table[table["panel"] == panel].reset_index(drop=True)
         ys = rows - len(mine) + np.arange(len(mine))  # the best row at the top of every panel
@@ -116,7 +117,7 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
         ax.spines["left"].set_visible(False)
         ax.grid(True, axis="x")
         seeds = sorted(set(mine["n"]))
-        ax.set_title(f"{panel} ({'/'.join(map(str, seeds))} seeds)")
+        ax.set_title(f"{panel} ({'/'.join(map(str, seeds))} seed{'s' if seeds != [1] else ''})")
     if measure.percent:
         axes[0, 0].set_xlim(-3, 103)
     reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""

@@ -264,7 +264,7 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
     numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
     if len(numbers):
         order = numbers.sort_values(["wind", "keeps_hovering", "iqm_final_reward"], ascending=[True, False, False],
-                                    na_position="last").index
+                                    na_position="last", kind="stable").index
         numbers, display = numbers.loc[order], display.loc[order]
     return numbers.reset_index(drop=True), display.reset_index(drop=True)
 
@@ -351,9 +351,9 @@ def provenance(runs: pd.DataFrame) -> str:
     if len(made) < 2:
         return ""
     parts = "; ".join(f"{n} on {cpu} ({mode})" for (cpu, mode), n in made.items())
-    return (f"Note: these runs were made on {len(made)} CPU model / float mode combinations ({parts}). In native "
-            "mode a seed run on another CPU model is another sample; portable runs give the same numbers on any "
-            "x86-64 CPU.\n\n")
+    return (f"Note: these runs were made on {len(made)} CPU model / float mode combinations ({parts}). A seed run "
+            "on another CPU model can be another sample (train.portable pins each library's code path; bitwise "
+            "equality across CPU models is not yet shown: README, Determinism).\n\n")
 
 
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
