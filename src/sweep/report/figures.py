@@ -137,7 +137,7 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
     else:
         title = f"mean over {max(seeds.values())} seeds; band: 95% bootstrap CI" if same else BAND
     notes = [NOTES.get(stem, "")] + [curve.note.format(**values) for curve, _ in rows]
-    _legend(fig, axes, wind, sub, conds, highlight, title, notes if any(notes[1:]) else [],
+    _legend(fig, axes, wind, panels, conds, highlight, title, notes if any(notes[1:]) else [],
             (lambda label: label) if same else (lambda label: f"{label} (n={'/'.join(map(str, sorted(n[label])))})"))
     return save(fig, out, f"{stem}_{wind}")
 
@@ -148,7 +148,7 @@ def _panel_title(ax, title: str, spans) -> None:
         ax.set_title(title, pad=13 if len(spans) >= 2 else 4)
 
 
-def _legend(fig, axes, wind: str, sub: pd.DataFrame, conds, highlight: Highlight, title: str, notes: list[str],
+def _legend(fig, axes, wind: str, panels: list, conds, highlight: Highlight, title: str, notes: list[str],
             name=lambda label: label) -> None:
     """One legend below the panels for the coloured series (in ranking order, as many columns as fit the figure's
     width), then the notes and the greyed agents, left-aligned with the panels."""
@@ -156,7 +156,8 @@ def _legend(fig, axes, wind: str, sub: pd.DataFrame, conds, highlight: Highlight
     for ax in axes.flat:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             entries.setdefault(label, handle)
-    ranked = highlight.ranked(wind, [c for _, shown in conds.panels(sub["condition"]) for c in shown])
+    drawn = list(dict.fromkeys(c for _, shown in panels for c in shown))  # the conditions of the panels
+    ranked = highlight.ranked(wind, drawn)
     order = list(dict.fromkeys(conds.series(c) for c in ranked if conds.series(c) in entries))
     handles = [entries[label] for label in order]
     labels = [textwrap.fill(name(label), 56, subsequent_indent="  ") for label in order]
@@ -172,8 +173,8 @@ def _legend(fig, axes, wind: str, sub: pd.DataFrame, conds, highlight: Highlight
         if (box.x0 >= fig.bbox.x0 and box.x1 <= fig.bbox.x1) or ncol == 1:
             break
         legend.remove()
-    grey = sorted({conds.labels[conds.agent(c)] for c in set(sub["condition"])
-                   if not highlight.is_coloured(wind, conds.agent(c))}, key=str.casefold)
+    grey = sorted({conds.labels[conds.agent(c)] for c in drawn if not highlight.is_coloured(wind, conds.agent(c))},
+                  key=str.casefold)
     if grey:
         notes = [*notes, f"Grey, without band: {', '.join(grey)} (not among the top {highlight.top} of a "
                          "panel)."]
@@ -205,14 +206,8 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
             scores = sub.loc[sub["condition"] == cond, "late_success"]
             n[cond] = len(scores)
             point, lo, hi = stats.performance_profile(scores, taus)
-            if not highlight.is_coloured(wind, conds.agent(cond)):
-                ax.plot(100 * taus, 100 * point, color=style.GREY, linewidth=0.6, drawstyle="steps-post", zorder=1)
-                continue
-            ax.plot(100 * taus, 100 * point, color=conds.color(cond), linestyle=conds.dash(cond),
-                    drawstyle="steps-post", label=conds.series(cond), zorder=3)
-            if np.isfinite(lo).any():
-                ax.fill_between(100 * taus, 100 * lo, 100 * hi, color=conds.color(cond), alpha=alpha, step="post",
-                                lw=0, zorder=2)
+            _series(ax, 100 * taus, 100 * point, 100 * lo, 100 * hi, cond, conds,
+                    highlight.is_coloured(wind, conds.agent(cond)), alpha, drawstyle="steps-post")
         ax.set_xlabel("Success level τ (%)")
         ax.set_xlim(0, 100)
         ax.set_ylim(-3, 103)
@@ -221,7 +216,7 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     runs_text = f"{max(n.values())} runs each" if len(set(n.values())) == 1 else "runs: " + ", ".join(map(str, n.values()))
     title = textwrap.fill(f"late = second half of training; {runs_text}; band: 95% bootstrap CI",
                           60 if len(panels) == 1 else 125)
-    _legend(fig, axes, wind, sub, conds, highlight, title, [])
+    _legend(fig, axes, wind, panels, conds, highlight, title, [])
     return save(fig, out, f"performance_profile_{wind}")
 
 
@@ -230,6 +225,19 @@ def band_alpha(shown: list[str], conds, highlight: Highlight, wind: str, alpha: 
     would wash into one colour)."""
     coloured = sum(highlight.is_coloured(wind, conds.agent(c)) for c in shown)
     return alpha if coloured <= 3 else alpha / 2
+
+
+def _series(ax, x, y, lo, hi, cond: str, conds, coloured: bool, alpha: float, **line) -> None:
+    """One condition's line: in its colour, with its legend label and its band (where it has one), or thin and
+    grey without band or label (``line``: the plot's own keywords, e.g. drawstyle, marker, linewidth)."""
+    step = {"step": "post"} if line.get("drawstyle") == "steps-post" else {}
+    if not coloured:
+        ax.plot(x, y, color=style.GREY, **{**line, "linewidth": 0.6, "markersize": 1.5}, zorder=1)
+        return
+    ax.plot(x, y, color=conds.color(cond), linestyle=conds.dash(cond), markersize=3, label=conds.series(cond),
+            zorder=3, **line)
+    if np.isfinite(lo).any():
+        ax.fill_between(x, lo, hi, color=conds.color(cond), alpha=alpha, linewidth=0, zorder=2, **step)
 
 
 def _back_to_front(shown: list[str], conds, highlight: Highlight, wind: str) -> list[str]:
@@ -251,13 +259,8 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds, highl
         if not len(matrix):
             continue
         mean, lo, hi, _ = stats.mean_band(matrix)
-        marker = "o" if len(grid) == 1 or curve.sparse else None
-        if highlight.is_coloured(wind, conds.agent(cond)):
-            ax.plot(grid, mean, color=conds.color(cond), linestyle=conds.dash(cond), linewidth=1.2, marker=marker,
-                    markersize=3, label=conds.series(cond), zorder=3)
-            ax.fill_between(grid, lo, hi, color=conds.color(cond), alpha=alpha, linewidth=0, zorder=2)
-        else:
-            ax.plot(grid, mean, color=style.GREY, linewidth=0.6, marker=marker, markersize=1.5, zorder=1)
+        _series(ax, grid, mean, lo, hi, cond, conds, highlight.is_coloured(wind, conds.agent(cond)), alpha,
+                linewidth=1.2, marker="o" if len(grid) == 1 or curve.sparse else None)
         seeds[cond] = len(matrix)
     if curve.logy:
         ax.set_yscale("log")
