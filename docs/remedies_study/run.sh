@@ -8,6 +8,7 @@
 #   docs/remedies_study/run.sh control       # the control added after main's first seeds: l2_lr_decay_8m, 8 seeds
 #   docs/remedies_study/run.sh none          # PPO and the 3 best agents, wind none (AGENTS_NONE)
 #   docs/remedies_study/run.sh fast          # PPO and the 4 best agents, 16 envs x 128 steps (AGENTS_FAST)
+#   docs/remedies_study/run.sh recheck       # issue 32: the six headline agents on 8 new seeds (8-15), portable mode
 #   docs/remedies_study/run.sh export        # new FINISHED runs -> docs/remedies_study/runs (commit them; the wind-none
 #                                            # runs with their models, for still-air)
 #   docs/remedies_study/run.sh still-air     # the wind-none runs' stored policies flown in still air (sweep.reevaluate)
@@ -30,6 +31,8 @@ STUDY=${STUDY:-/work/studies/remedies}
 PILOT_COMMIT=fce62f7
 MAIN_COMMIT=88620f6
 CONTROL_COMMIT=4160b3b
+RECHECK_COMMIT=750890e   # the first commit with train.portable (default true)
+AGENTS_RECHECK=ppo,recom_l2_relative,l2_lr_decay,l2_lr_decay_8m,ppo_target_kl,layer_norm
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/remedies_study/runs
 AGENTS_NONE=${AGENTS_NONE:-}   # set from the main phase's leaderboard, e.g. ppo,a,b,c
@@ -55,6 +58,7 @@ case ${1:-} in
   pilot)       sweep $PILOT_COMMIT pilot experiment=remedies train.total_timesteps=6000000 seed=0,1,2 tracking.experiment=remedies-pilot ;;
   main)        sweep $MAIN_COMMIT main experiment=remedies ;;
   control)     sweep $CONTROL_COMMIT control experiment=remedies agent=l2_lr_decay_8m ;;
+  recheck)     sweep $RECHECK_COMMIT recheck experiment=remedies "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$AGENTS_RECHECK" ;;
   none)        need AGENTS_NONE "$AGENTS_NONE"; sweep $MAIN_COMMIT none experiment=remedies wind=none "agent=$AGENTS_NONE" ${SEEDS:+"seed=$SEEDS"} ;;
   fast)        need AGENTS_FAST "$AGENTS_FAST"
                sweep $MAIN_COMMIT fast experiment=remedies env.n_envs=16 agent.ppo.n_steps=128 "agent=$AGENTS_FAST" ${SEEDS:+"seed=$SEEDS"} ;;
