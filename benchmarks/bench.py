@@ -22,8 +22,8 @@ One table, all rows measured in this run:
 * peak memory (max RSS of the worker process, resource.getrusage) per run;
 * the cost of each remedy in a JAX run, paper layout (1 env x 2048): one ``sweep.run.run`` of
   ``REMEDY_ROLLOUTS`` x 2048 steps per agent in a fresh worker (diagnostics, probe, MLflow in a temporary store,
-  checkpoints, final evaluations: a real run); the remedy's own time (its callback hooks, timed inside the run)
-  as a share of the run's training time (``learn()``; start-up and evaluations left out, as they are a
+  checkpoints, final evaluations: a real run); the remedy's own time (its hook methods, timed inside the run)
+  as a share of the run's training time (the training loop; start-up and evaluations left out, as they are a
   negligible part of a 20M-step run), and that time against PPO's (best of ``REPEATS``). ``python benchmarks/bench.py remedies``
   runs only these rows;
 * the remedies study's cadence (``python benchmarks/bench.py study``, also part of ``make bench``): two concurrent
@@ -33,7 +33,10 @@ One table, all rows measured in this run:
 * the cost of ``train.portable`` (``python benchmarks/bench.py portable``, also part of ``make bench``): the JAX
   learner end to end (steady rate from two run lengths, as above), SB3 PPO on the fast backend, the simulator at
   N=1024 and the plasticity probe, each in a fresh process per mode (sweep.portable.environment), native and
-  portable alternated ``REPEATS`` times, best kept.
+  portable alternated ``REPEATS`` times, best kept;
+* the training loop's cost (``python benchmarks/bench.py loop [COMMIT]``, not part of ``make bench``: it needs the
+  git history): the steady end-to-end rate (``experiment=paper``) of each learner with the code of COMMIT (default
+  ``LOOP_BASE``, the last commit with SB3's ``learn()`` and callbacks) against this tree, fresh processes, alternated.
 """
 from __future__ import annotations
 
@@ -212,7 +215,8 @@ def ppo_run(backend: str, n_envs: int, seed: int = 0, rollouts: int = PPO_ROLLOU
             "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "pid": os.getpid()}
 
 
-def _timed_run(overrides: list[str], barrier: str | None = None, parties: int = 1) -> tuple[float, float]:
+def _timed_run(overrides: list[str], barrier: str | None = None, parties: int = 1,
+               learner: str = "jax") -> tuple[float, float]:
     """``sweep.run.run`` of the composed config in-process, into a temporary store; (start, wall seconds)."""
     from pathlib import Path
 
@@ -227,7 +231,7 @@ def _timed_run(overrides: list[str], barrier: str | None = None, parties: int = 
 
         ensure_store(os.environ["MLFLOW_TRACKING_URI"], "bench")
         with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-            cfg = compose(config_name="config", overrides=[*overrides, "agent.learner=jax", "tracking.experiment=bench",
+            cfg = compose(config_name="config", overrides=[*overrides, f"agent.learner={learner}", "tracking.experiment=bench",
                                                             "train.progress_every_s=1000", "tracking.log_model=false",
                                                             f"train.portable={str(portable.active()).lower()}"])
         _file_barrier(barrier, parties)
@@ -246,28 +250,27 @@ def e2e_run(total: int, seed: int = 0, barrier: str | None = None, parties: int 
 def remedy_run(agent: str, rollouts: int = REMEDY_ROLLOUTS) -> dict:
     """One JAX run of ``agent`` end to end (``sweep.run.run``: diagnostics, MLflow into a temporary store,
     checkpoints, the final evaluation), paper layout, ``rollouts`` x 2048 steps; the time spent inside its
-    remedies' callback hooks, accumulated by wrapping those hooks on the remedy classes."""
-    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
-
+    remedies' hook methods, accumulated by wrapping them on the remedy classes."""
+    import sweep.run
     from sweep.plasticity.l2 import L2Regularization
     from sweep.plasticity.recom import Recom
     from sweep.plasticity.remedy import Remedy
 
     spent, learning = [0.0], [0.0]
-    learn = OnPolicyAlgorithm.learn
+    train = sweep.run.train
 
-    def timed_learn(self, *args, **kwargs):   # the training part of the run (what a 20M-step run is made of)
+    def timed_train(*args, **kwargs):   # the training part of the run (what a 20M-step run is made of)
         t = time.perf_counter()
-        out = learn(self, *args, **kwargs)
+        out = train(*args, **kwargs)
         learning[0] += time.perf_counter() - t
         return out
-    OnPolicyAlgorithm.learn = timed_learn
+    sweep.run.train = timed_train
     for cls in (Remedy, Recom, L2Regularization):
-        for hook in ("_on_rollout_start", "_on_rollout_end", "_on_step", "_init_callback"):
+        for hook in ("setup", "after_rollout", "after_update", "at_change", "at_end"):
             if hook in vars(cls):
-                def timed(self, f=vars(cls)[hook]):
+                def timed(self, *args, f=vars(cls)[hook]):
                     t = time.perf_counter()
-                    out = f(self)
+                    out = f(self, *args)
                     spent[0] += time.perf_counter() - t
                     return out
                 setattr(cls, hook, timed)
@@ -395,6 +398,50 @@ def portable_rows() -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
+SB3_E2E_STEPS = (10_240, 51_200)   # end-to-end SB3 runs (~50x slower than JAX): the steady rate from their difference
+LOOP_BASE = "0140226"               # the last commit before the training loop of issue 31 (SB3's learn() + callbacks)
+
+
+def loop_worker(kind: str) -> dict:
+    """The steady end-to-end rate of one learner through ``sweep.run.run``, with whichever ``sweep`` the process
+    imports (``bench.py loop-worker KIND``; ``PYTHONPATH`` chooses the commit)."""
+    steps = E2E_STEPS if kind == "jax" else SB3_E2E_STEPS
+    walls = [_timed_run(["experiment=paper", f"train.total_timesteps={n}"], learner=kind)[1] for n in steps]
+    return {"rate": (steps[1] - steps[0]) / (walls[1] - walls[0])}
+
+
+def loop_rows(base: str = LOOP_BASE) -> list[tuple[str, str, str, str, str]]:
+    """The training loop's cost (issue 31: within 3%): the steady end-to-end rate (experiment=paper, diagnostics
+    every rollout, MLflow, checkpoints) of ``base`` (a git worktree of that commit) against this tree, each
+    measurement in a fresh process, the two alternated REPEATS times per learner, best kept; ratio = this / base."""
+    import json
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    tree = Path(tempfile.gettempdir()) / f"sweep-bench-{base}"
+    if not tree.exists():
+        subprocess.run(["git", "-C", str(root), "worktree", "add", "--detach", str(tree), base], check=True,
+                       capture_output=True)
+    rates: dict[tuple[str, str], list[float]] = {}
+    for _ in range(REPEATS):
+        for kind in ("jax", "sb3"):
+            for name, src in ((base, tree / "src"), ("this tree", root / "src")):
+                env = {**os.environ, "PYTHONPATH": str(src)}
+                proc = subprocess.run([sys.executable, __file__, "loop-worker", kind], capture_output=True, text=True,
+                                      env=env, timeout=3600, check=True)
+                rates.setdefault((kind, name), []).append(json.loads(proc.stdout.strip().splitlines()[-1])["rate"])
+                print("loop", kind, name, round(rates[(kind, name)][-1], 1), flush=True)
+    rows = []
+    for kind, what in (("jax", "JAX learner"), ("sb3", "SB3 learner")):
+        old, new = max(rates[(kind, base)]), max(rates[(kind, "this tree")])
+        rows.append((f"training loop: {what} end to end (experiment=paper), steady ts/s ({base} vs this tree)",
+                     f"{old:,.1f} {[round(r, 1) for r in rates[(kind, base)]]}",
+                     f"{new:,.1f} {[round(r, 1) for r in rates[(kind, 'this tree')]]}", f"{new / old:.3f}x",
+                     ">= 0.97x: " + ("met" if new / old >= 0.97 else "MISSED")))
+    return rows
+
+
 def _fresh_pool_map(fn, argss):
     """Run fn(*args) for each args in fresh loky workers, all concurrently; return results in order."""
     from joblib import Parallel, delayed
@@ -426,6 +473,9 @@ def main() -> int:
         return _print_table(rows, t_start, load0)
     if sys.argv[1:] == ["portable"]:
         rows += portable_rows()
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:2] == ["loop"]:
+        rows += loop_rows(*sys.argv[2:3])
         return _print_table(rows, t_start, load0)
     import numba
 
@@ -560,9 +610,9 @@ def _print_table(rows, t_start: float, load0) -> int:
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["portable-worker"]:
+    if sys.argv[1:2] in (["portable-worker"], ["loop-worker"]):
         import json
 
-        print(json.dumps(portable_worker(sys.argv[2])))
+        print(json.dumps((portable_worker if sys.argv[1] == "portable-worker" else loop_worker)(sys.argv[2])))
         sys.exit(0)
     sys.exit(main())

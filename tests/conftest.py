@@ -49,3 +49,15 @@ def run_cli(args: list[str], uri: str, cwd: Path, timeout: float = 600) -> subpr
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri, "HYDRA_FULL_ERROR": "0"}
     return subprocess.run([sys.executable, "-m", "sweep", *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=timeout)
+
+
+def train_with(model, hooks=(), timesteps: int = 1024, logger=None):
+    """Train ``model`` from 0 to ``timesteps`` in the project's loop with ``hooks`` (Hook objects, in order);
+    returns the ``Training`` (its logger: one without outputs unless given)."""
+    from sweep.training.hooks import Hooks
+    from sweep.training.loop import Training, train
+
+    kwargs = {"logger": logger} if logger is not None else {}
+    training = Training(model, model.env, Hooks(list(hooks)), timesteps, **kwargs)
+    train(training)
+    return training

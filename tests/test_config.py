@@ -8,7 +8,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from conftest import CONF, ROOT, compose_cfg, run_cli
-from sweep.agents import build_remedies
+from sweep.training.hooks import build_hooks
 from sweep.config import ConfigError, validate
 
 AGENTS = sorted(p.stem for p in (CONF / "agent").glob("*.yaml"))
@@ -16,6 +16,9 @@ WINDS = sorted(p.stem for p in (CONF / "wind").glob("*.yaml"))
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
 
+# conf/hooks/default.yaml, in order (the checkpointer, which runs last, moved to the end)
+DEFAULT_HOOKS = ["PlasticityDiagnostics", "EnvMonitor", "PlasticityProbe", "PeriodicEvaluation", "BestPolicies",
+                 "NonFiniteGuard", "ProgressLine", "Checkpointer"]
 # agent YAML -> the remedies it switches on (their classes, in config order)
 REMEDIES = {"ppo": [], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
             "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
@@ -40,7 +43,7 @@ def test_every_config_composes_and_validates(agent, wind, experiment):
     cfg = compose_cfg(overrides)
     validate(cfg)
     assert cfg.agent.name == agent and cfg.wind.name == wind
-    assert [type(r).__name__ for r in build_remedies(cfg.agent)] == REMEDIES[agent]
+    assert [type(h).__name__ for h in build_hooks(cfg)] == REMEDIES[agent] + DEFAULT_HOOKS
 
 
 def test_paper_wind_and_experiment():
@@ -188,7 +191,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         empty = compose(config_name="sweep_schema")
     assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent, "learner") and OmegaConf.is_missing(empty.agent.recom, "gain")
-    for node in (empty.agent.learners, empty.env.backends):  # Dict nodes: Hydra's struct flag would refuse new keys
+    for node in (empty.agent.learners, empty.env.backends, empty.hooks):  # Dict nodes: Hydra's struct flag would refuse new keys
         OmegaConf.set_struct(node, False)
     typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=recom_l2"]), resolve=True))
     assert isinstance(typed.agent.recom.gradient, Enum) and typed.agent.recom.gradient.value == "absolute"
@@ -198,7 +201,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "c9f781668d2544b4"   # train.portable added
+JOB_KEY = "7e0dde1e71657976"   # the hooks (names and classes) added, checkpoint format 2
 
 
 def test_the_resume_key_changes_only_with_the_settings():
@@ -211,4 +214,7 @@ def test_the_resume_key_changes_only_with_the_settings():
     rewired = base + ["agent.learners.sb3._target_=my_lab.MyPPO.from_config"]
     assert job_key(compose_cfg(rewired), "sqlite:///x.db") == JOB_KEY
     assert job_key(compose_cfg(base + ["agent.learner=jax"]), "sqlite:///x.db") != JOB_KEY
+    # a hook's settings are interpolations of keys already in the key; another hook list is another job
+    assert job_key(compose_cfg(base + ["hooks.progress.every_s=5"]), "sqlite:///x.db") == JOB_KEY
+    assert job_key(compose_cfg(base + ["~hooks.probe"]), "sqlite:///x.db") != JOB_KEY
     assert job_key(compose_cfg(base), "sqlite:///y.db") != JOB_KEY

@@ -26,11 +26,12 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.utils import configure_logger
 
 from conftest import compose_cfg
-from sweep.agents import build_learner, build_remedies
+from sweep.agents import build_learner
 from sweep.agents import rollout as compiled
 from sweep.agents.jax_ppo import JaxPPO, ppo_loss
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.reward import HoverReward
+from sweep.training.hooks import remedy_hooks
 
 WEIGHT_ATOL = {None: 1e-5, "coupled": 1e-5, "decoupled": 5e-5}
 STAT_RTOL = 5e-6  # loss terms; pg loss and approx KL (near 0 by construction) are compared to 1e-6 absolute
@@ -43,8 +44,8 @@ def pair(overrides=(), n_envs=8, n_steps=256, seed=0, total_timesteps=None):
         cfg = compose_cfg([f"agent.learner={learner}", f"agent.ppo.n_steps={n_steps}", *overrides])
         env = HoverVecEnv(n_envs=n_envs, seed=seed, wind=WindSchedule([3.0]))
         model = build_learner(cfg.agent, env, seed, total_timesteps)
-        for remedy in build_remedies(cfg.agent):
-            remedy.init_callback(model)
+        for remedy in remedy_hooks(cfg.agent):
+            remedy.setup(model, None)
         models.append(model)
     return models
 

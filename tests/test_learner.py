@@ -182,3 +182,28 @@ def test_remedies_and_diagnostics_use_only_the_contract():
     for path in sources:
         for number, line in enumerate(Path(path).read_text().splitlines(), 1):
             assert not forbidden.search(line), f"{path.name}:{number}: {line.strip()}"
+
+
+# What only the learner modules (sweep/agents/sb3.py, jax_ppo.py, onpolicy.py) may touch: SB3's loop fields and
+# the logger's values. Hooks read records and the Learner contract; the logger is written to, never read.
+LOOP_FIELDS = re.compile(r"name_to_value|name_to_count|ep_info_buffer|ep_success_buffer|rollout_buffer|lr_schedule"
+                         r"|_last_obs|_last_episode_starts")
+HOOK_SOURCES = [*sorted((ROOT / "src/sweep/plasticity").glob("*.py")), *sorted((ROOT / "src/sweep/training").glob("*.py")),
+                *(ROOT / "src/sweep" / f for f in ("best_policy.py", "monitor.py", "checkpoint.py", "evaluate.py", "run.py"))]
+
+
+def loop_field_reads(text: str) -> list[str]:
+    """The lines of ``text`` that name one of SB3's loop fields or the logger's values."""
+    return [f"{n}: {line.strip()}" for n, line in enumerate(text.splitlines(), 1) if LOOP_FIELDS.search(line)]
+
+
+def test_hooks_read_records_not_the_logger_or_sb3_fields():
+    assert len(HOOK_SOURCES) >= 17
+    found = {path.name: loop_field_reads(path.read_text()) for path in HOOK_SOURCES}
+    assert not any(found.values()), {k: v for k, v in found.items() if v}
+    # the check fails on a planted read (the couplings issue 31 removed)
+    planted = (ROOT / "src/sweep/best_policy.py").read_text().replace(
+        "latest = self.evaluation.latest", "latest = learner.logger.name_to_value.get('eval/return')")
+    assert [line.split(": ", 1)[1] for line in loop_field_reads(planted)] == [
+        "latest = learner.logger.name_to_value.get('eval/return')"]
+    assert loop_field_reads("episodes = self.model.ep_info_buffer") and loop_field_reads("model.lr_schedule = s")

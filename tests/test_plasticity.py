@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import compose_cfg
-from sweep.agents import build_learner, build_remedies
+from conftest import compose_cfg, train_with
+from sweep.agents import build_learner
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.plasticity.batch import recent_rollout
-from sweep.plasticity.diagnostics import PlasticityDiagnostics
 from sweep.plasticity.dormant import dormant_mask, dormant_ratio, dormant_scores, srank
 from sweep.plasticity.l2 import L2Regularization
 from sweep.plasticity.recom import Recom, cost_gradient, recom_lr, retrospective_cost
+from sweep.training.hooks import build_hooks, remedy_hooks
+from sweep.training.records import Condition, Episode, RolloutRecord, UpdateRecord
 
 LEARNERS = ["sb3", "jax"]
 
@@ -58,13 +58,12 @@ def test_diagnostics_report_exactly_the_units_made_dormant(name):
         params[f"mlp_extractor.policy_net.{2 * layer}.weight"][units] = 0.0
         params[f"mlp_extractor.policy_net.{2 * layer}.bias"][units] = 0.0
     model.write_parameters(params)
-    diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
-    diagnostics.init_callback(model)
-    obs = recent_rollout(model.rollout_buffer, cfg.plasticity.batch_size)[0]
+    diagnostics = build_hooks(cfg)["diagnostics"]
+    obs = model.recent_samples(cfg.plasticity.batch_size).observations
     pi_layers = [h.post for h in model.hidden_activations(obs)["policy"]]
     for layer, units in silenced.items():
         assert np.flatnonzero(dormant_mask(pi_layers[layer], 0.025)).tolist() == units
-    stats = diagnostics.measure()
+    stats = diagnostics.measure(model)
     assert stats["dormant_ratio_layer0"] == 3 / 64 and stats["dormant_ratio_layer1"] == 4 / 64
     assert stats["dormant_ratio"] == 7 / 128 and stats["value_dormant_ratio"] == 0.0
 
@@ -77,9 +76,7 @@ def test_diagnostics_agree_between_learners_on_the_same_weights_and_batch():
     jx.rollout_buffer = sb3.rollout_buffer
     measured = []
     for model in (sb3, jx):
-        diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
-        diagnostics.init_callback(model)
-        measured.append(diagnostics.measure())
+        measured.append(build_hooks(cfg)["diagnostics"].measure(model))
     assert measured[0].keys() == measured[1].keys()
     for key in measured[0]:
         assert measured[1][key] == pytest.approx(measured[0][key], rel=1e-4, abs=1e-6), key
@@ -104,39 +101,44 @@ def test_recom_equations_by_hand():
     assert recom_lr(3e-4, -1000.0, 5e-6, 1e-5, 1e-3) == (1e-3, True)   # clipped above
 
 
-class FakeLogger:
-    def __init__(self):
-        self.name_to_value = {}
+class FakeLearner:
+    """The part of the Learner contract RECOM uses: the learning rate it sets."""
 
-    def record(self, key, value):
-        self.name_to_value[key] = value
+    def __init__(self, lr: float = 3e-4) -> None:
+        self.lr = lr
+
+    def set_learning_rate(self, value=None) -> float:
+        self.lr = self.lr if value is None else float(value)
+        return self.lr
+
+
+def update_record(loss: float) -> UpdateRecord:
+    """An update whose mean total loss is ``loss`` (pg = loss, value and entropy 0)."""
+    return UpdateRecord(index=0, timesteps=0, learning_rate=0.0, clip_range=0.2, policy_gradient_loss=loss,
+                        value_loss=0.0, entropy_loss=0.0, loss=loss, approx_kl=0.0, clip_fraction=0.0,
+                        explained_variance=0.0, epochs=1, n_updates=1, std=1.0, vf_coef=0.5, ent_coef=0.0)
 
 
 def drive_recom(recom: Recom, rollouts: list[tuple[float, list[float]]]) -> list[float]:
-    """Feed (loss of the update before the rollout, episode returns of the rollout) sequences."""
-    recom.schedule = None
-    recom.model = type("M", (), {})()
-    recom.model.lr_schedule = lambda _: 3e-4
-    recom.model.vf_coef, recom.model.ent_coef = 0.5, 0.0
-    recom.model.logger = FakeLogger()
-    recom._init_callback()
-    lrs, recom.num_timesteps = [], 0
+    """Feed (loss of the update before the rollout, episode returns of the rollout) sequences, 100 steps per
+    rollout; returns the learning rate after each rollout. ``recom.logged``: everything it returned."""
+    learner = FakeLearner()
+    recom.setup(learner, None)
+    recom.logged = {}
+    lrs, timesteps = [], 0
     for loss, returns in rollouts:
-        if loss is not None:  # SB3 logged the parts of the last update
-            recom.model.logger.name_to_value = {"train/policy_gradient_loss": loss, "train/value_loss": 0.0,
-                                          "train/entropy_loss": 0.0}
-        recom._on_rollout_start()
-        for r in returns:
-            r, length = r if isinstance(r, tuple) else (r, 1)
-            recom.locals = {"infos": [{"episode": {"r": r, "l": length}}]}
-            recom._on_step()
-        recom.num_timesteps += 100
-        recom._on_rollout_end()
-        lrs.append(recom.schedule.value)
+        if loss is not None:  # an update ran before this rollout
+            recom.logged.update(recom.after_update(learner, update_record(loss)))
+        episodes = tuple(Episode(*(r if isinstance(r, tuple) else (r, 1)), False) for r in returns)
+        timesteps += 100
+        rollout = RolloutRecord(index=0, timesteps=timesteps, episodes=episodes, mean_recent_return=None,
+                                condition=Condition(0, 0.0))
+        recom.logged.update(recom.after_rollout(learner, rollout))
+        lrs.append(learner.lr)
     return lrs
 
 
-def test_recom_callback_on_synthetic_sequence():
+def test_recom_hook_on_synthetic_sequence():
     recom = Recom(interval=200, window=2, gain=1e-6, lr_min=1e-5, lr_max=1e-3, previous="last_update")
     # rollout 1 has no update before it: its episodes are not used.
     lrs = drive_recom(recom, [(None, [-50.0]), (2.0, [-10.0, -20.0]), (4.0, [-30.0]), (1.0, [-40.0, -60.0])])
@@ -144,9 +146,9 @@ def test_recom_callback_on_synthetic_sequence():
     # update at t=400: last 2 = (-40,1), (-60,1): C = (41 + 61)/2 = 51; G = 51 - 17 = 34; lr = 3e-4 - 34e-6
     assert lrs[:3] == [3e-4, 3e-4, 3e-4]
     assert lrs[3] == pytest.approx(3e-4 - 34e-6)
-    assert recom.logger.name_to_value["recom/cost"] == 51.0
-    assert recom.logger.name_to_value["recom/cost_gradient"] == 34.0
-    assert recom.logger.name_to_value["recom/at_bound"] == 0.0
+    assert recom.logged["recom/cost"] == 51.0
+    assert recom.logged["recom/cost_gradient"] == 34.0
+    assert recom.logged["recom/at_bound"] == 0.0
 
 
 def test_recom_per_step_reward_reading():
@@ -155,7 +157,7 @@ def test_recom_per_step_reward_reading():
     lrs = drive_recom(recom, [(None, [(-50.0, 5)]), (2.0, [(-10.0, 5), (-20.0, 10)]), (4.0, []),
                               (1.0, [(-40.0, 20), (-60.0, 20)])])
     # t=200: per-step rewards -2, -2 with loss 2: C = 4. t=400: -2, -3 with loss 1: C = (3 + 4)/2 = 3.5; G = -0.5
-    assert recom.logger.name_to_value["recom/cost"] == 3.5
+    assert recom.logged["recom/cost"] == 3.5
     assert lrs[3] == pytest.approx(3e-4 + 0.5e-6)
 
 
@@ -165,8 +167,8 @@ def test_recom_shifted_window_and_clipping():
     # episodes (-10,1), (-20,1), (-90,1): C_ret over last 2 = (21+91)/2 = 56, C_prev over (-10,-20) = 16
     # G = 40, lr = 3e-4 - 0.04 -> clipped to 1e-4
     assert lrs[-1] == 1e-4
-    assert recom.logger.name_to_value["recom/cost_prev"] == 16.0
-    assert recom.logger.name_to_value["recom/at_bound"] == 1.0
+    assert recom.logged["recom/cost_prev"] == 16.0
+    assert recom.logged["recom/at_bound"] == 1.0
 
 
 def test_recom_relative_gradient_is_the_change_over_the_previous_cost():
@@ -174,7 +176,7 @@ def test_recom_relative_gradient_is_the_change_over_the_previous_cost():
     lrs = drive_recom(recom, [(None, [-50.0]), (2.0, [-10.0, -20.0]), (4.0, [-30.0]), (1.0, [-40.0, -60.0])])
     # C: 17 then 51 (see above): G = 34 / 17 = 2; lr = 3e-4 - 1e-4 * 2 = 1e-4
     assert lrs[3] == pytest.approx(1e-4)
-    assert recom.logger.name_to_value["recom/cost_gradient"] == pytest.approx(2.0)
+    assert recom.logged["recom/cost_gradient"] == pytest.approx(2.0)
 
 
 @pytest.mark.parametrize("name", LEARNERS)
@@ -183,29 +185,27 @@ def test_recom_learning_rate_reaches_the_optimizer(name):
                        "agent.recom.interval=256", "agent.recom.gain=1e-3"])
     env = HoverVecEnv(n_envs=2, seed=0, episode_seconds=0.5, wind=WindSchedule(speeds=[0.0]))
     model = build_learner(cfg.agent, env, seed=0)
-    remedies = build_remedies(cfg.agent)
+    remedies = remedy_hooks(cfg.agent)
     recom = remedies[-1]
-    seen = []
+    seen = []   # per update: (RECOM's LR, the LRs the update used, the LR its record reports)
+    original_update = model.update
     if name == "sb3":  # the LR of both param groups of the torch optimizer during the update
-        original_train = model.train
 
-        def train_and_record():
-            original_train()
-            groups = model.policy.optimizer.param_groups
-            seen.append((recom.schedule.value, [g["lr"] for g in groups], model.logger.name_to_value["train/learning_rate"]))
-        model.train = train_and_record
+        def update_and_record():
+            record = original_update()
+            seen.append((recom.lr, [g["lr"] for g in model.policy.optimizer.param_groups], record.learning_rate))
+            return record
     else:  # the LR argument of the jitted update
-        original_train, original_update = model.train, None
+        jitted = model._update
 
-        def train_and_record():
-            nonlocal original_update
-            original_update = original_update or model._update
+        def update_and_record():
             used = []
-            model._update = lambda *args: used.append(args[4]) or original_update(*args)
-            original_train()
-            seen.append((recom.schedule.value, used, model.logger.name_to_value["train/learning_rate"]))
-        model.train = train_and_record
-    model.learn(256 * 2 * 4, callback=remedies)
+            model._update = lambda *args: used.append(args[4]) or jitted(*args)
+            record = original_update()
+            seen.append((recom.lr, used, record.learning_rate))
+            return record
+    model.update = update_and_record
+    train_with(model, remedies, 256 * 2 * 4)
     lrs = [s[0] for s in seen]
     assert len(set(lrs)) > 1, "RECOM never changed the learning rate"
     for target, used, logged in seen:
@@ -222,8 +222,8 @@ def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term(mode, optimizer):
     ppo = build_learner(compose_cfg(["agent=ppo"]).agent, env, seed=0)
     l2_cfg = compose_cfg(["agent=l2", f"agent.l2.mode={mode}"]).agent
     l2 = build_learner(l2_cfg, env, seed=0)
-    (remedy,) = build_remedies(l2_cfg)
-    remedy.init_callback(l2)
+    (remedy,) = remedy_hooks(l2_cfg)
+    remedy.setup(l2, None)
     base = ppo.policy.optimizer
     new = l2.policy.optimizer
     assert type(base) is torch.optim.Adam and type(new) is optimizer
@@ -242,10 +242,10 @@ def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term(mode, optimizer):
 @pytest.mark.parametrize("name", LEARNERS)
 def test_l2_scope_is_configurable(name):
     _, model = learner(name)
-    L2Regularization(coef=0.1, params=["policy"], biases=False).init_callback(model)
+    L2Regularization(coef=0.1, params=["policy"], biases=False).setup(model, None)
     assert model.l2_decayed == ["action_net.weight", "mlp_extractor.policy_net.0.weight",
                                 "mlp_extractor.policy_net.2.weight"]
-    L2Regularization(coef=0.1, params=["value", "log_std"], biases=True).init_callback(model)
+    L2Regularization(coef=0.1, params=["value", "log_std"], biases=True).setup(model, None)
     assert model.l2_decayed == sorted(["log_std", "value_net.weight", "value_net.bias",
                                        *(f"mlp_extractor.value_net.{i}.{p}" for i in (0, 2) for p in ("weight", "bias"))])
 
@@ -284,9 +284,7 @@ def test_diagnostics_log_every_reading_per_layer_and_pooled(name):
     params["mlp_extractor.policy_net.2.weight"][:10] = 0.0
     params["mlp_extractor.policy_net.2.bias"][:10] = 10.0
     model.write_parameters(params)
-    diagnostics = PlasticityDiagnostics.from_config(cfg.plasticity)
-    diagnostics.init_callback(model)
-    stats = diagnostics.measure()
+    stats = build_hooks(cfg)["diagnostics"].measure(model)
     assert stats["dead_tanh_ratio_layer1"] == 10 / 64 and stats["dead_tanh_ratio"] == 10 / 128
     assert stats["dead_tanh_ratio_layer0"] == 0.0
     assert stats["dormant_ratio_tau0.1"] >= stats["dormant_ratio"]
@@ -374,8 +372,7 @@ def test_probe_leaves_weights_optimizer_and_every_rng_alone(name):
     before = (model.parameter_arrays(), model.optimizer_moments(), model.rng.bit_generator.state,
               np.random.get_state()[1].copy(), torch.get_rng_state().clone())
     probe = PlasticityProbe(**cfg.plasticity.probe)
-    probe.init_callback(model)
-    stats = probe.measure()
+    stats = probe.measure(model)
     assert stats["plasticity/probe_loss"] < stats["plasticity/probe_loss_early"]
     assert set(stats) == {"plasticity/probe_loss", "plasticity/probe_loss_early", "plasticity/probe_loss_fresh"}
     after = (model.parameter_arrays(), model.optimizer_moments(), model.rng.bit_generator.state,

@@ -11,7 +11,7 @@ from mlflow.tracking import MlflowClient
 from stable_baselines3.common.utils import configure_logger
 
 from conftest import compose_cfg
-from sweep.agents import build_remedies
+from sweep.training.hooks import remedy_hooks
 from sweep.agents.networks import fresh_parameters
 from sweep.agents.schedules import LRSchedule
 from sweep.plasticity.cbp import ContinualBackprop
@@ -144,7 +144,7 @@ def test_one_update_with_each_remedy_agrees_between_sb3_and_jax(remedy):
     stats = []
     for model in models.values():
         silence(model, 0, 1, [2, 30])
-        (callback,) = [cb for cb in build_remedies(compose_cfg(REMEDY_OVERRIDES[remedy]).agent)
+        (callback,) = [cb for cb in remedy_hooks(compose_cfg(REMEDY_OVERRIDES[remedy]).agent)
                        if getattr(cb, "name", "") == remedy]
         stats.append(callback.act(model, OBS))
     assert stats[0] == pytest.approx(stats[1], rel=1e-4)

@@ -20,6 +20,7 @@ from sweep.monitor import EnvMonitor
 from sweep.run import run, run_job
 from sweep.status import read_status
 from sweep.tracking import ensure_store
+from sweep.training.hooks import Hook, Hooks
 
 # RECOM + L2 with a short interval: the learning rate moves during the run, so RECOM's state, the optimizer, the
 # env and the RNGs must all come back for the continued history to equal the uninterrupted one.
@@ -45,15 +46,15 @@ def all_runs(uri: str):
 @contextlib.contextmanager
 def cut_at(step: int):
     """Runs inside raise at the first rollout end at or past ``step`` (as a crash mid-run would)."""
-    original = EnvMonitor._on_rollout_end
+    original = EnvMonitor.after_rollout
 
-    def cut(self):
-        if self.num_timesteps >= step:
-            raise RuntimeError(f"cut at {self.num_timesteps}")
-        original(self)
+    def cut(self, learner, rollout):
+        if rollout.timesteps >= step:
+            raise RuntimeError(f"cut at {rollout.timesteps}")
+        return original(self, learner, rollout)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(EnvMonitor, "_on_rollout_end", cut)
+        mp.setattr(EnvMonitor, "after_rollout", cut)
         yield
 
 
@@ -141,3 +142,44 @@ def test_a_bad_resume_value_is_one_config_error_line(value, store, tmp_path, mon
         "store with a checkpoint ("), err
     assert all_runs(store) == []
     assert read_status(out)["status"] == "INVALID"
+
+
+class Counter(Hook):
+    """A stateful hook: counts rollouts and logs the count."""
+
+    def __init__(self) -> None:
+        self.rollouts = 0
+
+    def after_rollout(self, learner, rollout) -> dict:
+        self.rollouts += 1
+        return {}
+
+    def state_dict(self) -> dict:
+        return {"rollouts": self.rollouts}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.rollouts = state["rollouts"]
+
+
+def test_a_hook_inserted_in_the_middle_resumes_a_checkpoint_taken_before(store, tmp_path, interrupted, reference,
+                                                                          monkeypatch, caplog):
+    """Hook state is saved by name: a stateful hook inserted before RECOM after the checkpoint was taken starts
+    afresh (a warning says so), and every other hook gets its own state back, so the continued run's histories
+    are the uninterrupted run's. (Restored by position, RECOM would receive the diagnostics' state, and the run
+    would fail or its history differ.)"""
+    import sweep.run as run_module
+
+    out, run_id, ckpt = interrupted
+    build = run_module.build_hooks
+    inserted = Counter()
+
+    def with_counter(cfg):
+        hooks = list(build(cfg))
+        return Hooks(hooks[:1] + [inserted] + hooks[1:])   # after L2, before RECOM and the diagnostics
+    monkeypatch.setattr(run_module, "build_hooks", with_counter)
+    with caplog.at_level(logging.INFO, logger="sweep"):
+        assert run(compose_cfg([*RUN, f"resume={out}"]), tmp_path / "second") == run_id
+    assert "hook 'Counter' has no state in the checkpoint; it starts afresh" in caplog.text
+    assert [h.name for h in with_counter(compose_cfg(RUN))][:3] == ["l2", "Counter", "recom"]
+    assert inserted.rollouts == 2   # the two rollouts after 1,024 (it started afresh)
+    assert histories(store, run_id) == reference

@@ -10,32 +10,31 @@ import pytest
 import torch
 from mlflow.tracking import MlflowClient
 from stable_baselines3 import PPO
-from stable_baselines3.common.callbacks import BaseCallback
 
 from conftest import TINY, compose_cfg
 from sweep.checkpoint import load_checkpoint
 import sweep.run as run_module
 from sweep.run import run, run_job
 from sweep.status import read_status
+from sweep.training.hooks import Hook, Hooks
 
 
-class PoisonWeight(BaseCallback):
-    """At the first rollout end at or past ``at_step``: one weight of ``name`` becomes NaN (before the update)."""
+class PoisonWeight(Hook):
+    """At the first rollout end at or past ``at_step``: one weight of ``weight`` becomes NaN (before the update)."""
 
-    def __init__(self, at_step: int, name: str = "mlp_extractor.value_net.0.weight") -> None:
-        super().__init__()
-        self.at_step, self.name, self.done = int(at_step), name, False
+    name = "poison"
 
-    def _on_step(self) -> bool:
-        return True
+    def __init__(self, at_step: int, weight: str = "mlp_extractor.value_net.0.weight") -> None:
+        self.at_step, self.weight, self.done = int(at_step), weight, False
 
-    def _on_rollout_end(self) -> None:
-        if self.done or self.num_timesteps < self.at_step:
-            return
-        weight = self.model.parameter_arrays()[self.name]
+    def after_rollout(self, learner, rollout) -> dict:
+        if self.done or rollout.timesteps < self.at_step:
+            return {}
+        weight = learner.parameter_arrays()[self.weight]
         weight[0, 0] = np.nan
-        self.model.write_parameters({self.name: weight})
+        learner.write_parameters({self.weight: weight})
         self.done = True
+        return {}
 
 
 def test_relu_policy_on_the_sb3_learner(store, tmp_path):
@@ -64,15 +63,15 @@ def test_relu_policy_on_the_sb3_learner(store, tmp_path):
 @pytest.mark.parametrize("learner", ["sb3", "jax"])
 def test_nan_guard_ends_the_run_failed(learner, store, tmp_path, monkeypatch, capsys):
     """A value weight set to NaN after the rollout ending at 1,024 steps makes that update's loss NaN. The guard
-    stops the run at the next rollout start: exit code 1, the project's one failure line naming the loss and
+    stops the run after that update: exit code 1, the project's one failure line naming the loss and
     the step, status.json FAILED, the MLflow run FAILED with the reason (none left RUNNING), and the checkpoint
     the last good state (512), not the poisoned one. Without the guard (NonFiniteGuard patched out) the NaN
     surfaces later as an unrelated error (SB3: "LinAlgError: SVD did not converge" in the diagnostics; JAX:
     "ZeroDivisionError"), and the message check fails."""
     out = tmp_path / "job"
     monkeypatch.setattr("sweep.run.tempfile", types.SimpleNamespace(mkdtemp=lambda: str(out)))  # run_job's job dir
-    remedies = run_module.build_remedies
-    monkeypatch.setattr(run_module, "build_remedies", lambda agent: [*remedies(agent), PoisonWeight(at_step=1024)])
+    build = run_module.build_hooks
+    monkeypatch.setattr(run_module, "build_hooks", lambda cfg: Hooks([*build(cfg), PoisonWeight(at_step=1024)]))
     cfg = compose_cfg([f"agent.learner={learner}", "train.total_timesteps=2048", "agent.ppo.n_steps=512",
                        "train.checkpoint_every=512", "eval.episodes=2", "env.episode_seconds=1.0",
                        "train.progress_every_s=1000"])

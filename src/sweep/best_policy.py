@@ -6,23 +6,27 @@ kept, each as a copy of the learner's parameters, its score and the timestep it 
 
 * ``reward``: the highest ``rollout/ep_rew_mean`` (SB3's mean return of the last 100 finished episodes),
   read at every rollout end, the paper's reading;
-* ``eval``: the highest in-training ``eval/return`` (only when ``eval.every_timesteps`` > 0; this callback
-  must come after ``PeriodicEvaluation``, which records it at the same rollout end).
+* ``eval``: the highest in-training ``eval/return`` (only when ``eval.every_timesteps`` > 0), read from the
+  ``evaluation`` hook (``PeriodicEvaluation``, which this hook requires before it) at the rollout end it evaluated.
 
 A tie keeps the earlier policy. The state (parameters included) is checkpointed, so a resumed run keeps them.
 """
 from __future__ import annotations
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
-from sweep.metrics import eval_key
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord
 
 
-class BestPolicies(BaseCallback):
+class BestPolicies(Hook):
+    requires = ("evaluation",)
+
     def __init__(self) -> None:
-        super().__init__()
         self.kept: dict[str, dict] = {}   # reading -> {"score", "step", "params"}
+
+    def setup(self, learner, training) -> None:
+        self.evaluation = training.hooks["evaluation"]
 
     def state_dict(self) -> dict:
         return {"kept": {k: {**v, "params": {n: a.copy() for n, a in v["params"].items()}} for k, v in self.kept.items()}}
@@ -30,20 +34,16 @@ class BestPolicies(BaseCallback):
     def load_state_dict(self, state: dict) -> None:
         self.kept = dict(state["kept"])
 
-    def _on_step(self) -> bool:
-        return True
-
-    def offer(self, reading: str, score: float) -> None:
+    def offer(self, learner, reading: str, score: float, step: int) -> None:
         """Keep the learner's current parameters if ``score`` beats the best of ``reading`` so far."""
         if not np.isfinite(score) or (reading in self.kept and score <= self.kept[reading]["score"]):
             return
-        self.kept[reading] = {"score": float(score), "step": int(self.num_timesteps),
-                              "params": self.model.parameter_arrays()}
+        self.kept[reading] = {"score": float(score), "step": int(step), "params": learner.parameter_arrays()}
 
-    def _on_rollout_end(self) -> None:
-        episodes = self.model.ep_info_buffer
-        if episodes:
-            self.offer("reward", float(np.mean([ep["r"] for ep in episodes])))
-        eval_return = self.model.logger.name_to_value.get(eval_key("final", "return"))
-        if eval_return is not None:   # PeriodicEvaluation evaluated at this rollout end
-            self.offer("eval", float(eval_return))
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
+        if rollout.mean_recent_return is not None:
+            self.offer(learner, "reward", rollout.mean_recent_return, rollout.timesteps)
+        latest = self.evaluation.latest
+        if latest is not None and latest[0] == rollout.timesteps:   # evaluated at this rollout end
+            self.offer(learner, "eval", latest[1]["return"], rollout.timesteps)
+        return {}

@@ -1,10 +1,11 @@
 """Checkpoint and resume of one run.
 
-A checkpoint is taken right after a PPO update (at the start of the next rollout), every
-``train.checkpoint_every`` timesteps and when training ends. It holds the policy and optimizer, SB3's
-loop state (timesteps, last observations, episode-info buffer, the not-yet-dumped logger values),
-every stateful callback (RECOM's episodes, cost and LR), the env (vehicles, clocks, start RNG) and the
-global RNGs (torch, numpy, python), so the continued run is the run that would have happened.
+A checkpoint is taken by the ``Checkpointer`` hook right after a PPO update, once the other hooks have acted on
+it, every ``train.checkpoint_every`` timesteps and when training ends. It holds the policy and optimizer, the
+learner's loop state (timesteps, last observations, episode-info buffer), every hook's state by name (RECOM's
+episodes, cost and LR; a new hook in the list starts afresh, a removed one's state is ignored), the loop's metrics
+waiting for the next log line, the env (vehicles, clocks, start RNG) and the global RNGs (torch, numpy, python),
+so the continued run is the run that would have happened.
 Written atomically: to ``checkpoint.pt.tmp``, then renamed over ``checkpoint.pt``.
 
 Where: ``<train.checkpoint_dir>/<job key>/``, the job key being a hash of the resolved config and the
@@ -17,22 +18,23 @@ import hashlib
 import json
 import os
 import random
-from collections import deque
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 from omegaconf import DictConfig
-from stable_baselines3.common.callbacks import BaseCallback
 
-from sweep.config import settings
+from sweep.config import ConfigError, settings
 from sweep.status import read_json, update_json
+from sweep.training.hooks import Hook, Training   # Training: the loop's state (sweep.training.loop), which imports this
 
 
 def job_key(cfg: DictConfig, uri: str) -> str:
-    """Stable id of a job: its resolved settings (``config.settings``) without ``resume``, and the tracking store."""
+    """Stable id of a job: its resolved settings (``config.settings``) without ``resume``, the names and classes of
+    its hooks (conf/hooks/: a run with another hook list is another job), and the tracking store."""
     container = settings(cfg)
+    container["hooks"] = [[name, spec.get("_target_")] for name, spec in cfg.get("hooks", {}).items()]
     container.pop("resume", None)
     container.get("train", {}).pop("progress_every_s", None)
     text = json.dumps({"config": container, "uri": uri}, sort_keys=True, default=str)
@@ -54,80 +56,76 @@ class JobRecord:
         update_json(self.path, **fields)
 
 
-def _stateful(callbacks: list[BaseCallback]) -> list[BaseCallback]:
-    return [cb for cb in callbacks if hasattr(cb, "state_dict") and hasattr(cb, "load_state_dict")]
+FORMAT = 2   # 2: hooks by name and the loop's pending metrics (issue 31); format-1 checkpoints do not resume
 
 
-class Checkpointer(BaseCallback):
-    """Saves every ``every`` timesteps after an update; restores a checkpoint when learning starts."""
+def snapshot(training: Training) -> dict[str, Any]:
+    """Everything the run needs to continue exactly: the learner's loop state and networks, every hook's state by
+    name, the loop's own (metrics waiting for the next log line, the last condition), the env and the global RNGs."""
+    return {"format": FORMAT, "num_timesteps": training.learner.num_timesteps,
+            "training": training.learner.training_state(), "hooks": training.hooks.state_dict(),
+            "loop": training.state_dict(), "env": training.env.get_state(),
+            "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}}
 
-    def __init__(self, path: Path, every: int, callbacks: list[BaseCallback], resume: dict | None = None,
-                 before_save=None) -> None:
-        super().__init__()
-        self.path, self.every = Path(path), int(every)
-        self.before_save = before_save  # e.g. flush buffered metrics, so the store covers what the checkpoint does
-        self.others = _stateful(callbacks)
-        self.resume = resume
-        self.last_saved = resume["num_timesteps"] if resume else 0
 
-    # -- restoring: loop state before learn(), the rest once every callback has initialised --
-    @staticmethod
-    def prepare_model(model, state: dict) -> None:
-        """Set SB3's loop state so ``learn(reset_num_timesteps=False)`` continues without an env reset."""
-        model.num_timesteps = state["num_timesteps"]
-        model._n_updates = state["n_updates"]
-        model._last_obs = state["last_obs"]
-        model._last_episode_starts = state["last_episode_starts"]
-        model.load_learner_state(state["learner"], optimizer=False)
-        model.ep_info_buffer = deque(state["ep_info_buffer"], maxlen=model._stats_window_size)
-        model.ep_success_buffer = deque(state["ep_success_buffer"], maxlen=model._stats_window_size)
+def restore_loop(learner, state: dict) -> None:
+    """Before the learner's set-up: its loop state, so ``begin(..., reset=False)`` continues without an env reset."""
+    learner.load_training_state(state["training"])
 
-    def _init_callback(self) -> None:
-        if self.resume is None:
-            return
-        state = self.resume
-        self.model.load_learner_state(state["learner"])  # after the remedies set up the optimizer
-        for cb, cb_state in zip(self.others, state["callbacks"]):
-            cb.load_state_dict(cb_state)
-        self.training_env.set_state(state["env"])
-        self.model.logger.name_to_value.update(state["logger_values"])
-        self.model.logger.name_to_count.update(state["logger_counts"])
-        torch.set_rng_state(state["rng"]["torch"])
-        np.random.set_state(state["rng"]["numpy"])
-        random.setstate(state["rng"]["python"])
 
-    # -- saving --
-    def _on_step(self) -> bool:
-        return True
+def restore(training: Training, state: dict) -> None:
+    """Once every hook is set up (L2 has replaced the optimizer): the networks and optimizer, the hooks by name,
+    the loop, the env and the global RNGs."""
+    training.learner.load_learner_state(state["training"]["learner"])
+    training.hooks.load_state_dict(state["hooks"])
+    training.load_state_dict(state["loop"])
+    training.env.set_state(state["env"])
+    torch.set_rng_state(state["rng"]["torch"])
+    np.random.set_state(state["rng"]["numpy"])
+    random.setstate(state["rng"]["python"])
 
-    def _on_rollout_start(self) -> None:
-        if self.num_timesteps - self.last_saved >= self.every:
+
+class Checkpointer(Hook):
+    """Saves ``snapshot(training)`` after the first update that passes each ``every`` timesteps, and at the end.
+    Runs last (``runs_last``), so the snapshot holds what every other hook did and returned after that update."""
+
+    runs_last = True
+
+    def __init__(self, every: int) -> None:
+        self.every = int(every)
+        self.last_saved = 0
+        self.training: Training | None = None
+
+    def setup(self, learner, training: Training) -> None:
+        self.training = training
+        self.last_saved = learner.num_timesteps
+
+    def after_update(self, learner, update) -> dict:
+        if learner.num_timesteps - self.last_saved >= self.every:
             self.save()
+        return {}
+
+    def at_end(self, learner, update) -> dict:
+        self.save()
+        return {}
 
     def save(self) -> None:
-        if self.before_save is not None:
-            self.before_save()
-        model = self.model
-        state = {
-            "num_timesteps": model.num_timesteps,
-            "n_updates": model._n_updates,
-            "learner": model.learner_state(),
-            "last_obs": model._last_obs,
-            "last_episode_starts": model._last_episode_starts,
-            "ep_info_buffer": list(model.ep_info_buffer),
-            "ep_success_buffer": list(model.ep_success_buffer),
-            "logger_values": dict(model.logger.name_to_value),
-            "logger_counts": dict(model.logger.name_to_count),
-            "callbacks": [cb.state_dict() for cb in self.others],
-            "env": self.training_env.get_state(),
-            "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
-        }
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".pt.tmp")
-        torch.save(state, tmp)
-        os.replace(tmp, self.path)
-        self.last_saved = model.num_timesteps
+        if self.training.flush is not None:   # the store covers what the checkpoint does
+            self.training.flush()
+        path = self.training.checkpoint_path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".pt.tmp")
+        torch.save(snapshot(self.training), tmp)
+        os.replace(tmp, path)
+        self.last_saved = self.training.learner.num_timesteps
 
 
 def load_checkpoint(path: Path) -> dict | None:
-    return torch.load(path, weights_only=False) if Path(path).exists() else None
+    """The checkpoint at ``path`` (None if there is none); one written before format 2 is a ConfigError."""
+    if not Path(path).exists():
+        return None
+    state = torch.load(path, weights_only=False)
+    if state.get("format") != FORMAT:
+        raise ConfigError(f"resume: {path} was written by an older version of the training loop (checkpoint format "
+                          f"{state.get('format', 1)}, this code reads {FORMAT}); run with resume=never, or delete it")
+    return state

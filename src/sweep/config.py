@@ -304,20 +304,24 @@ class SweepConfig:
     plasticity: Plasticity = field(default_factory=Plasticity)
     eval: Eval = field(default_factory=Eval)
     tracking: Tracking = field(default_factory=Tracking)
+    hooks: Dict[str, Any] = field(default_factory=dict, metadata={
+        "check": lambda v: all(isinstance(h, dict) and "_target_" in h for h in v.values()),
+        "allowed": "a block of named hooks, each with a _target_ (conf/hooks/)"})
 
 
 ConfigStore.instance().store(name="sweep_schema", node=SweepConfig)
 
-# Which class builds a learner / backend: wiring, not a setting of the run (agent.learner and env.backend, the
-# names, are). Left out of a job's resume key and of its logged MLflow params.
-WIRING = (("agent", "learners"), ("env", "backends"))
+# Which class builds a learner / backend, and the hooks (whose settings are interpolations of documented keys):
+# wiring, not a setting of the run (agent.learner and env.backend, the names, are). Left out of the logged MLflow
+# params; a job's resume key has the hooks' names and classes (sweep.checkpoint.job_key).
+WIRING = (("agent", "learners"), ("env", "backends"), (None, "hooks"))
 
 
 def settings(cfg: DictConfig) -> dict:
     """The resolved config as plain containers, without the WIRING blocks."""
     container = OmegaConf.to_container(cfg, resolve=True)
     for group, name in WIRING:
-        container.get(group, {}).pop(name, None)
+        (container if group is None else container.get(group, {})).pop(name, None)
     return container
 
 
@@ -388,6 +392,9 @@ def _check(value: Any, typ: Any, key: str, meta: Any = None) -> None:
             raise _fail(key, value, "a block of named entries")
         for name, item in value.items():
             _check(item, typing.get_args(typ)[1], f"{key}.{name}")
+        check = (meta or {}).get("check")
+        if check is not None and not check(value):
+            raise _fail(key, value, allowed)
         return
     if origin is list:
         item_type = typing.get_args(typ)[0]

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import numpy as np
 from omegaconf import DictConfig
-from stable_baselines3.common.callbacks import BaseCallback
-
 from sweep import metrics
 from sweep.cadence import Cadence
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.factory import make_env
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord
 
 
 def hover_success(positions: np.ndarray, crashed: bool, radius: float, hold_steps: int) -> bool:
@@ -103,27 +103,26 @@ def evaluate(policy, eval_cfg: DictConfig, env_cfg: DictConfig) -> tuple[dict[st
     return {f.name: values[f.name] for f in metrics.EVAL_FIELDS}, trajectories
 
 
-class PeriodicEvaluation(BaseCallback):
-    """Runs the protocol during training every ``eval.every_timesteps`` (after the rollout that passes it),
-    logging the current policy's ``eval/*`` at that step. The final evaluation is done by ``run`` at the end."""
+class PeriodicEvaluation(Hook):
+    """Runs the protocol during training every ``eval.every_timesteps`` (0: never; after the rollout that passes
+    it), logging the current policy's ``eval/*`` at that step and keeping them as ``latest`` = (timesteps, values)
+    for hooks that read them. The final evaluation is done by ``run`` at the end."""
 
     def __init__(self, eval_cfg: DictConfig, env_cfg: DictConfig) -> None:
-        super().__init__()
         self.eval_cfg, self.env_cfg = eval_cfg, env_cfg
-        self.cadence = Cadence(eval_cfg.every_timesteps)
+        self.cadence = Cadence(eval_cfg.every_timesteps) if eval_cfg.every_timesteps > 0 else None
+        self.latest: tuple[int, dict[str, float]] | None = None
 
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_end(self) -> None:
-        if not self.cadence.due(self.num_timesteps):
-            return
-        values, _ = evaluate(self.model, self.eval_cfg, self.env_cfg)
-        for field, value in values.items():
-            self.logger.record(metrics.eval_key("final", field), value)
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict[str, float]:
+        if self.cadence is None or not self.cadence.due(rollout.timesteps):
+            return {}
+        values, _ = evaluate(learner, self.eval_cfg, self.env_cfg)
+        self.latest = (rollout.timesteps, values)
+        return {metrics.eval_key("final", field): value for field, value in values.items()}
 
     def state_dict(self) -> dict:
-        return {"next_at": self.cadence.next_at}
+        return {"next_at": self.cadence.next_at if self.cadence else None}
 
     def load_state_dict(self, state: dict) -> None:
-        self.cadence.next_at = state["next_at"]
+        if self.cadence is not None:
+            self.cadence.next_at = state["next_at"]

@@ -1,4 +1,4 @@
-"""Run-time callbacks that are not remedies: a progress line and environment statistics."""
+"""Hooks that watch a run without changing it: a progress line, the NaN guard, the condition in force."""
 from __future__ import annotations
 
 import logging
@@ -6,7 +6,9 @@ import math
 import time
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord, UpdateRecord
 
 log = logging.getLogger("sweep")
 
@@ -18,29 +20,30 @@ def _duration(seconds: float) -> str:
     return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s"
 
 
-class ProgressLine(BaseCallback):
-    """Every ``every_s`` seconds: ``[label] 40,960/20,000,000 ts (0.2%) | 1,510 ts/s | ETA 3h40m``."""
+class ProgressLine(Hook):
+    """At the first rollout end ``every_s`` seconds after the last line, and at the end:
+    ``[label] 40,960/20,000,000 ts (0.2%) | 1,510 ts/s | ETA 3h40m``."""
 
-    def __init__(self, label: str, total_timesteps: int, every_s: float = 30.0) -> None:
-        super().__init__()
-        self.label, self.total, self.every_s = label, int(total_timesteps), float(every_s)
+    def __init__(self, every_s: float = 30.0) -> None:
+        self.every_s = float(every_s)
 
-    def _on_training_start(self) -> None:
+    def setup(self, learner, training) -> None:
+        self.label, self.total = training.label, int(training.total_timesteps)
         self.t0 = self.last = time.time()
-        self.start_steps = self.num_timesteps
+        self.start_steps = learner.num_timesteps
 
-    def _on_step(self) -> bool:
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
         now = time.time()
         if now - self.last >= self.every_s:
             self.last = now
-            self.print_line(now)
-        return True
+            self.print_line(rollout.timesteps, now)
+        return {}
 
-    def _on_training_end(self) -> None:
-        self.print_line(time.time())
+    def at_end(self, learner, update) -> dict:
+        self.print_line(learner.num_timesteps, time.time())
+        return {}
 
-    def print_line(self, now: float) -> None:
-        done = self.num_timesteps
+    def print_line(self, done: int, now: float) -> None:
         rate = (done - self.start_steps) / max(now - self.t0, 1e-9)
         eta = (self.total - done) / rate if rate > 0 else float("inf")
         log.info("[%s] %s/%s ts (%.1f%%) | %s ts/s | ETA %s", self.label, f"{done:,}", f"{self.total:,}",
@@ -51,30 +54,23 @@ class NonFiniteError(FloatingPointError):
     """The training loss or the network's parameters became NaN/inf."""
 
 
-class NonFiniteGuard(BaseCallback):
-    """After every update: stop the run if ``train/loss`` or any parameter is not finite."""
+class NonFiniteGuard(Hook):
+    """After every update: stop the run if its loss (``train/loss``) or any parameter is not finite."""
 
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_training_end(self) -> None:
-        self._on_rollout_start()
-
-    def _on_rollout_start(self) -> None:
-        loss = self.model.logger.name_to_value.get("train/loss")
-        if loss is not None and not math.isfinite(loss):
-            raise NonFiniteError(f"train/loss={loss} after the update at {self.num_timesteps} timesteps")
-        for name, p in self.model.parameter_arrays().items():
+    def after_update(self, learner, update: UpdateRecord) -> dict:
+        if not math.isfinite(update.loss):
+            raise NonFiniteError(f"train/loss={update.loss} after the update at {update.timesteps} timesteps")
+        for name, p in learner.parameter_arrays().items():
             if not np.isfinite(p).all():
-                raise NonFiniteError(f"parameter {name} is not finite after the update at {self.num_timesteps} timesteps")
+                raise NonFiniteError(f"parameter {name} is not finite after the update at {update.timesteps} timesteps")
+        return {}
+
+    def at_end(self, learner, update: UpdateRecord | None) -> dict:
+        return self.after_update(learner, update) if update is not None else {}
 
 
-class EnvMonitor(BaseCallback):
-    """Logs the wind speed in force (``env/wind_speed``) and the throughput (``time/fps`` is SB3's)."""
+class EnvMonitor(Hook):
+    """Logs the condition in force at each rollout end (``env/wind_speed``)."""
 
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_end(self) -> None:
-        env = self.training_env
-        self.logger.record("env/wind_speed", float(env.wind.speed_at(env.global_step)))
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
+        return {"env/wind_speed": rollout.condition.wind_speed}

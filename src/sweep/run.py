@@ -1,4 +1,4 @@
-"""One job of a sweep: validate -> seed -> env + agent + callbacks -> learn -> evaluate -> track.
+"""One job of a sweep: validate -> seed -> env + learner + hooks -> train (sweep.training.loop) -> evaluate -> track.
 
 ``run(cfg, out_dir)`` is the orchestration; ``run_job(cfg)`` is what ``python -m sweep`` calls for each
 Hydra job (it records the job's status and turns errors into one line and an exit code).
@@ -17,22 +17,19 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
-from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import CSVOutputFormat, Logger
 from stable_baselines3.common.utils import set_random_seed
 from threadpoolctl import threadpool_limits
 
-from sweep.agents import build_learner, build_remedies
+from sweep.agents import build_learner
 from sweep import metrics, portable
-from sweep.best_policy import BestPolicies
-from sweep.checkpoint import Checkpointer, JobRecord, job_key, load_checkpoint
+from sweep.checkpoint import JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, settings, validate
 from sweep.envs.factory import make_env, wind_schedule
-from sweep.evaluate import PeriodicEvaluation, evaluate
-from sweep.monitor import EnvMonitor, NonFiniteGuard, ProgressLine
-from sweep.plasticity.diagnostics import PlasticityDiagnostics
-from sweep.plasticity.probe import PlasticityProbe
+from sweep.evaluate import evaluate
 from sweep.status import read_status, write_status
+from sweep.training.hooks import Hooks, build_hooks
+from sweep.training.loop import Training, train
 from sweep.tracking import (PROJECT_ROOT, MlflowWriter, TrackedRun, checkpoint_dir_of_run, flatten, last_logged_step,
                             tracking_uri)
 
@@ -80,18 +77,9 @@ def job_record(cfg: DictConfig) -> JobRecord:
 
 def run(cfg: DictConfig, out_dir: Path) -> str:
     """Train and evaluate one agent/wind/seed (continuing its checkpoint if any); returns the MLflow run id."""
-    validate(cfg)
-    try:
-        portable.check(cfg.train.portable)
-    except ValueError as err:
-        raise ConfigError(str(err)) from None
+    hooks = checked(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
-    torch.set_num_threads(cfg.train.torch_threads)
-    # NumPy's BLAS too (diagnostics' SVD): its idle threads spin and take the core from the next update
-    threadpool_limits(cfg.train.torch_threads)
-    # No argument checks in torch.distributions: a NaN update then surfaces as train/loss=nan, which
-    # NonFiniteGuard reports, instead of a ValueError deep inside SB3's next minibatch.
-    torch.distributions.Distribution.set_default_validate_args(False)
+    limit_threads(cfg)
     set_random_seed(cfg.seed)
     tags = job_tags(cfg)
 
@@ -104,61 +92,68 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
 
     env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed, cfg.train.total_timesteps)
-    callbacks = build_remedies(cfg.agent) + [PlasticityDiagnostics.from_config(cfg.plasticity), EnvMonitor()]
-    probe = PlasticityProbe(**cfg.plasticity.probe, activation=cfg.agent.policy.activation, seed=cfg.seed) \
-        if cfg.plasticity.probe.steps > 0 else None
-    callbacks += [probe] if probe else []
-    if cfg.eval.every_timesteps > 0:
-        callbacks.append(PeriodicEvaluation(cfg.eval, cfg.env))
-    best = BestPolicies()   # after PeriodicEvaluation: it reads the eval/return recorded at the same rollout end
-    callbacks.append(best)
-    checkpointer = Checkpointer(record.checkpoint, cfg.train.checkpoint_every, callbacks, resume=state)
-    callbacks += [NonFiniteGuard(), checkpointer,
-                  ProgressLine(tags["run_name"], cfg.train.total_timesteps, cfg.train.progress_every_s)]
-
     run_id = previous.get("run_id") if previous else None
-    params = flatten(settings(cfg))
-    with TrackedRun(cfg.tracking, params, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
+    with TrackedRun(cfg.tracking, flatten(settings(cfg)), {**tags, "checkpoint_dir": str(record.dir)},
+                    run_id=run_id) as tracked:
         record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
         log.info("[%s] MLflow run %s in %s%s", tags["run_name"], tracked.run_id, tracked.uri,
                  f" (resumed at {state['num_timesteps']:,} timesteps)" if state else "")
-        config_path = out_dir / "config.yaml"
-        OmegaConf.save(cfg, config_path, resolve=True)
-        tracked.log_artifact(config_path)
+        OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
+        tracked.log_artifact(out_dir / "config.yaml")
         writer = MlflowWriter(tracked, after_step=last_logged_step(tracked) if run_id else -1,
                               flush_every_s=cfg.tracking.flush_every_s)
-        checkpointer.before_save = writer.flush
-        model.set_logger(Logger(str(out_dir), [CSVOutputFormat(str(out_dir / "progress.csv")), writer]))
-
-        if state:
-            Checkpointer.prepare_model(model, state)
-        remaining = cfg.train.total_timesteps - model.num_timesteps
+        logger = Logger(str(out_dir), [CSVOutputFormat(str(out_dir / "progress.csv")), writer])
+        training = Training(model, env, hooks, cfg.train.total_timesteps, logger, label=tags["run_name"],
+                            checkpoint_path=record.checkpoint, flush=writer.flush)
         try:
-            if remaining > 0:
-                model.learn(total_timesteps=remaining, callback=CallbackList(callbacks),
-                            reset_num_timesteps=state is None)
-                checkpointer.save()
-                if probe:  # the probe at the end of training, logged at the final step like the evaluation
-                    tracked.log_metrics(probe.measure(), model.num_timesteps)
+            train(training, resume=state)   # a checkpoint taken at the end: restored for the evaluation only
         finally:
             writer.flush()  # what was logged before a failure is kept too
-
-        if cfg.eval.policy in ("final", "both"):
-            scores = evaluate_and_store(model, cfg, tracked, out_dir, "final")
-            log.info("[%s] done: %s", tags["run_name"], ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
-        if cfg.eval.policy in ("best", "both"):
-            final = model.parameter_arrays()
-            for reading, kept in best.kept.items():
-                model.write_parameters(kept["params"])
-                policy = metrics.KEPT[reading]
-                scores = evaluate_and_store(model, cfg, tracked, out_dir, policy,
-                                            {"source_step": kept["step"], "source_score": kept["score"]})
-                log.info("[%s] %s (from %s steps): %s", tags["run_name"], metrics.POLICIES[policy], f"{kept['step']:,}",
-                         ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
-            model.write_parameters(final)
+        evaluate_policies(model, cfg, tracked, out_dir, tags["run_name"], hooks)
     record.write(status="FINISHED")
     return tracked.run_id
+
+
+def checked(cfg: DictConfig) -> Hooks:
+    """Everything that can be wrong with a config, before anything runs (a ConfigError, one line): the schema, the
+    process's float mode, and the hook list; returns the run's hooks (``sweep.training.hooks.build_hooks``)."""
+    validate(cfg)
+    try:
+        portable.check(cfg.train.portable)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+    try:
+        return build_hooks(cfg)
+    except ValueError as err:
+        raise ConfigError(f"hooks: {err}") from None
+
+
+def limit_threads(cfg: DictConfig) -> None:
+    """One thread per run for torch and NumPy's BLAS (``train.torch_threads``)."""
+    torch.set_num_threads(cfg.train.torch_threads)
+    # NumPy's BLAS too (diagnostics' SVD): its idle threads spin and take the core from the next update
+    threadpool_limits(cfg.train.torch_threads)
+    # No argument checks in torch.distributions: a NaN update then surfaces as train/loss=nan, which
+    # NonFiniteGuard reports, instead of a ValueError deep inside SB3's next minibatch.
+    torch.distributions.Distribution.set_default_validate_args(False)
+
+
+def evaluate_policies(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, name: str, hooks: Hooks) -> None:
+    """``eval.policy``: the final policy, and/or the best ones the ``best_policies`` hook kept."""
+    if cfg.eval.policy in ("final", "both"):
+        scores = evaluate_and_store(model, cfg, tracked, out_dir, "final")
+        log.info("[%s] done: %s", name, ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
+    if cfg.eval.policy in ("best", "both") and "best_policies" in hooks:
+        final = model.parameter_arrays()
+        for reading, kept in hooks["best_policies"].kept.items():
+            model.write_parameters(kept["params"])
+            policy = metrics.KEPT[reading]
+            scores = evaluate_and_store(model, cfg, tracked, out_dir, policy,
+                                        {"source_step": kept["step"], "source_score": kept["score"]})
+            log.info("[%s] %s (from %s steps): %s", name, metrics.POLICIES[policy], f"{kept['step']:,}",
+                     ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
+        model.write_parameters(final)
 
 
 def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, policy: str,

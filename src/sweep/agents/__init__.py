@@ -1,15 +1,14 @@
-"""The learner (``agent.learner``: ``sb3`` = SB3 PPO, the reference; ``jax`` = the compiled equivalent) and
-the agent's remedies, built from the ``agent`` config group.
+"""The learner (``agent.learner``: ``sb3`` = SB3 PPO, the reference; ``jax`` = the compiled equivalent), built
+from the ``agent`` config group (the agent's remedies are hooks: ``sweep.training.hooks.remedy_hooks``).
 
-Both learners are SB3 ``OnPolicyAlgorithm``s (same ``learn()``, logger and callbacks) and implement one
-contract, ``sweep.agents.learner.Learner``, which is all that remedies, diagnostics and checkpoints use.
+Both learners are SB3 ``OnPolicyAlgorithm``s and implement one contract, ``sweep.agents.learner.Learner``, which
+is all that the training loop, the hooks and checkpoints use.
 """
 from __future__ import annotations
 
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.schedules import LRSchedule
@@ -32,14 +31,4 @@ def build_learner(agent: DictConfig, env: VecEnv, seed: int, total_timesteps: in
     return from_config(env, ppo, list(p.net_arch), p.activation, p.adam_eps, seed, layer_norm=bool(p.layer_norm))
 
 
-def build_remedies(agent: DictConfig) -> list[BaseCallback]:
-    """Instantiate every enabled ``agent.<key>`` that has a ``_target_`` (in config order)."""
-    remedies = []
-    for spec in agent.values():
-        if isinstance(spec, DictConfig) and "_target_" in spec and spec.get("enabled", True):
-            kwargs = {k: v for k, v in spec.items() if k != "enabled"}
-            remedies.append(instantiate(OmegaConf.create(kwargs)))
-    return remedies
-
-
-__all__ = ["build_learner", "build_remedies"]
+__all__ = ["build_learner"]

@@ -64,8 +64,10 @@ from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 from sweep.agents import rollout  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
 from sweep.agents.networks import LAYER_NORM_EPS, Network, actor_critic, policy_class, remedy_rng  # noqa: E402
+from sweep.agents.onpolicy import StepwiseLearning  # noqa: E402
 from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
+from sweep.training.records import UpdateRecord  # noqa: E402
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu}
 
@@ -152,7 +154,7 @@ def ppo_loss(params: Params, batch: dict[str, jax.Array], clip_range, ent_coef: 
     return loss, (pg_loss, value_loss, entropy_loss, clip_fraction, approx_kl)
 
 
-class JaxPPO(OnPolicyAlgorithm):
+class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
     """PPO with SB3's semantics; see the module docstring. Keyword arguments are SB3 PPO's."""
 
     def __init__(self, env: VecEnv, *, learning_rate: float = 3e-4, n_steps: int = 2048, batch_size: int = 64,
@@ -309,8 +311,12 @@ class JaxPPO(OnPolicyAlgorithm):
                 "old_log_prob": flat(buf.log_probs), "advantages": flat(buf.advantages), "returns": flat(buf.returns)}
 
     def train(self) -> None:
+        """SB3's ``train()`` (what ``learn()`` calls): one update, its record logged as SB3 logs it."""
+        for key, value in self.update().metrics().items():
+            self.logger.record(key, value)
+
+    def _train_record(self) -> UpdateRecord:
         lr = float(self.lr_schedule(self._current_progress_remaining))
-        self.logger.record("train/learning_rate", lr)
         clip_range = float(self.clip_range_schedule(self._current_progress_remaining))
         batch = self.rollout_batch()
         values = batch.pop("values")
@@ -328,16 +334,15 @@ class JaxPPO(OnPolicyAlgorithm):
             for _ in range(epochs):
                 np.random.permutation(size)
         self._n_updates += epochs
-        self.logger.record("train/entropy_loss", float(ent[:n].mean()))
-        self.logger.record("train/policy_gradient_loss", float(pg[:n].mean()))
-        self.logger.record("train/value_loss", float(vf[:n].mean()))
-        self.logger.record("train/approx_kl", float(kl[(epochs - 1) * per_epoch:n].mean()))  # SB3: the last epoch's
-        self.logger.record("train/clip_fraction", float(clip_frac[:n].mean()))
-        self.logger.record("train/loss", float(loss[n - 1]))  # SB3: the last minibatch's
-        self.logger.record("train/explained_variance", explained_variance(values, batch["returns"]))
-        self.logger.record("train/std", float(np.exp(self._log_std).mean()))
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/clip_range", clip_range)
+        return UpdateRecord(
+            index=self._updates, timesteps=int(self.num_timesteps), learning_rate=lr, clip_range=clip_range,
+            policy_gradient_loss=float(pg[:n].mean()), value_loss=float(vf[:n].mean()), entropy_loss=float(ent[:n].mean()),
+            loss=float(loss[n - 1]),  # SB3: the last minibatch's
+            approx_kl=float(kl[(epochs - 1) * per_epoch:n].mean()),  # SB3: the last epoch's
+            clip_fraction=float(clip_frac[:n].mean()),
+            explained_variance=float(explained_variance(values, batch["returns"])), epochs=epochs,
+            n_updates=int(self._n_updates), std=float(np.exp(self._log_std).mean()), vf_coef=float(self.vf_coef),
+            ent_coef=float(self.ent_coef))
 
     # ---- what the rest of the project asks of a learner -------------------------------------------
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = False):

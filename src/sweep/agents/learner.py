@@ -14,6 +14,11 @@ PPO's minibatch order from NumPy's *global* RNG (``np.random.permutation`` per e
 ``RolloutBuffer.get`` does: that keeps the two learners update-for-update equal for the same seed, and is
 why a remedy must never touch ``np.random``.
 
+The loop (``sweep.training.loop``) drives a learner one step at a time: ``begin``, then per iteration ``collect``
+(a ``RolloutRecord``), ``log_rollout`` and ``update`` (an ``UpdateRecord``); ``sweep.agents.onpolicy`` implements
+these for both learners on SB3's own ``OnPolicyAlgorithm`` steps. Nothing outside the learner modules reads SB3's
+loop fields (logger values, ``rollout_buffer``, ``ep_info_buffer``, ``lr_schedule``; tests/test_learner.py).
+
 Optimizer state. ``reset_optimizer(masks)`` zeroes Adam's first and second moments where a mask is True
 (the step count, hence the bias correction, is kept): what ReDo and CBP do to the weights they re-initialise.
 """
@@ -24,6 +29,7 @@ from typing import Any, Mapping, NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from sweep.agents.networks import Network
+from sweep.training.records import RolloutRecord, Samples, UpdateRecord
 
 
 class Hidden(NamedTuple):
@@ -40,6 +46,32 @@ class Learner(Protocol):
     networks: tuple[Network, Network]      # (policy, value)
     minibatches_per_update: int            # SGD steps of one full update (n_epochs x rollout / batch_size)
 
+    # -- the loop's steps --
+    def begin(self, timesteps: int, reset: bool = True) -> int:
+        """Set up for ``timesteps`` more steps (``reset``: from 0, env reset); returns the timestep to train to."""
+
+    def collect(self) -> RolloutRecord:
+        """One rollout into the rollout buffer."""
+
+    def log_rollout(self, iteration: int) -> None:
+        """Write the rollout's log line (``rollout/*``, ``time/*``) with everything recorded since the last."""
+
+    def update(self) -> UpdateRecord:
+        """One PPO update on the last rollout."""
+
+    def recent_samples(self, n: int) -> Samples:
+        """The ``n`` most recent steps of the last rollout."""
+
+    def set_learning_rate(self, value: float | None = None) -> float:
+        """Every following update uses ``value`` (None: the rate in force now); returns it."""
+
+    def training_state(self) -> dict[str, Any]:
+        """The loop state (timesteps, last observations, episode buffers) and ``learner_state()``."""
+
+    def load_training_state(self, state: dict[str, Any]) -> None:
+        """The loop state of ``training_state`` (before ``begin(..., reset=False)``)."""
+
+    # -- the networks --
     def parameter_arrays(self) -> dict[str, np.ndarray]:
         """Copies of every parameter, by name."""
 

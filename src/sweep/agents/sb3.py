@@ -13,16 +13,19 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.learner import Hidden
 from sweep.agents.networks import actor_critic, policy_class, remedy_rng
+from sweep.agents.onpolicy import StepwiseLearning
 from sweep.plasticity.l2 import l2_optimizer
+from sweep.training.records import UpdateRecord
 
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 
 
-class SB3PPO(PPO):
+class SB3PPO(StepwiseLearning, PPO):
     @classmethod
     def from_config(cls, env: VecEnv, ppo: dict, net_arch: list[int], activation: str, adam_eps: float,
                     seed: int, layer_norm: bool = False) -> "SB3PPO":
@@ -39,6 +42,26 @@ class SB3PPO(PPO):
     @property
     def minibatches_per_update(self) -> int:
         return self.n_epochs * -(-self.n_steps * self.n_envs // self.batch_size)
+
+    # ---- one update, as a record ---------------------------------------------------------------------
+    def _train_record(self) -> UpdateRecord:
+        """SB3's ``PPO.train()``, unchanged; what it logs is caught by a logger of its own and returned."""
+        caught = Logger(folder=None, output_formats=[])
+        own, self._logger = self._logger, caught
+        epochs_before = self._n_updates
+        try:
+            self.train()
+        finally:
+            self._logger = own
+        v = caught.name_to_value
+        return UpdateRecord(
+            index=self._updates, timesteps=int(self.num_timesteps), learning_rate=float(v["train/learning_rate"]),
+            clip_range=float(v["train/clip_range"]), policy_gradient_loss=float(v["train/policy_gradient_loss"]),
+            value_loss=float(v["train/value_loss"]), entropy_loss=float(v["train/entropy_loss"]), loss=float(v["train/loss"]),
+            approx_kl=float(v["train/approx_kl"]), clip_fraction=float(v["train/clip_fraction"]),
+            explained_variance=float(v["train/explained_variance"]), epochs=self._n_updates - epochs_before,
+            n_updates=int(self._n_updates), std=float(v["train/std"]) if "train/std" in v else None,
+            vf_coef=float(self.vf_coef), ent_coef=float(self.ent_coef))
 
     # ---- parameters ----------------------------------------------------------------------------------
     def parameter_arrays(self) -> dict[str, np.ndarray]:

@@ -34,6 +34,7 @@ from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
+from sweep.training.records import Condition
 
 SAFE_SPEED, SAFE_RATE = 100.0, 100.0  # m/s, rad/s: RotorPy's safety_exit bounds
 
@@ -230,6 +231,11 @@ class HoverVecEnv(VecEnv):
                 quat_to_euler_xyz(s.q[i], att[i])
         return np.concatenate([s.x, s.v * self.velocity_scale, att, s.w * self.body_rate_scale],
                               axis=1).astype(np.float32)
+
+    def condition(self) -> Condition:
+        """The condition in force at the current global step: the schedule's segment and its wind speed."""
+        return Condition(segment=int(self.global_step // self.wind.segment_steps),
+                         wind_speed=float(self.wind.speed_at(self.global_step)))
 
     # ---- checkpoints ----------------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:

@@ -1,6 +1,7 @@
 """``PlasticityDiagnostics``: network statistics a plasticity study tracks, logged under ``plasticity/``.
 
-Computed at the end of every ``every_rollouts``-th rollout on the ``batch_size`` most recent
+A hook (conf/hooks/diagnostics.yaml, settings under ``plasticity.*``). Computed at the end of every
+``every_rollouts``-th rollout, before the update, on the ``batch_size`` most recent
 observations of that rollout:
 
   plasticity/dormant_ratio           tau-dormant share over the policy network's hidden layers (paper Figs. 4-5)
@@ -19,31 +20,25 @@ observations of that rollout:
 from __future__ import annotations
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
-from sweep.plasticity.batch import recent_rollout
 from sweep.plasticity.dormant import (active_ratio, dead_tanh_mask, dormant_mask, dormant_ratio, pooled,
                                      saturated_ratio, signed_mean_mask, srank)
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord
 
 
-class PlasticityDiagnostics(BaseCallback):
-    """Reads the networks through the learner (``hidden_activations``, ``parameter_arrays``,
+class PlasticityDiagnostics(Hook):
+    """Reads the networks through the learner (``recent_samples``, ``hidden_activations``, ``parameter_arrays``,
     ``loss_grad_norm``), so the statistics are the same code for every learner."""
 
     def __init__(self, every_rollouts: int = 1, tau: float = 0.025, batch_size: int = 1024,
                  saturation: float = 0.99, srank_delta: float = 0.01, extra_taus=(0.1,), dead_fraction: float = 0.99,
                  signed_mean_tau: float = 0.1, activation: str = "tanh") -> None:
-        super().__init__()
         self.every, self.tau, self.batch_size = int(every_rollouts), float(tau), int(batch_size)
         self.saturation, self.srank_delta = float(saturation), float(srank_delta)
         self.extra_taus, self.dead_fraction = tuple(float(t) for t in extra_taus), float(dead_fraction)
         self.signed_mean_tau, self.activation = float(signed_mean_tau), activation
         self.rollouts = 0
-
-    @classmethod
-    def from_config(cls, plasticity) -> "PlasticityDiagnostics":
-        """From the ``plasticity`` config group (its ``probe`` settings are the probe's, sweep.plasticity.probe)."""
-        return cls(**{k: v for k, v in plasticity.items() if k != "probe"})
 
     def state_dict(self) -> dict:
         return {"rollouts": self.rollouts}
@@ -51,18 +46,15 @@ class PlasticityDiagnostics(BaseCallback):
     def load_state_dict(self, state: dict) -> None:
         self.rollouts = state["rollouts"]
 
-    def _on_step(self) -> bool:
-        return True
-
-    def _on_rollout_end(self) -> None:
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict[str, float]:
         self.rollouts += 1
-        if (self.rollouts - 1) % self.every == 0:
-            for key, value in self.measure().items():
-                self.logger.record(f"plasticity/{key}", value)
+        if (self.rollouts - 1) % self.every:
+            return {}
+        return {f"plasticity/{key}": value for key, value in self.measure(learner).items()}
 
-    def measure(self) -> dict[str, float]:
-        model = self.model
-        obs, actions, advantages, returns = recent_rollout(model.rollout_buffer, self.batch_size)
+    def measure(self, model) -> dict[str, float]:
+        """The statistics of the learner's networks on its ``batch_size`` most recent observations."""
+        obs, actions, advantages, returns = model.recent_samples(self.batch_size)
         activations = model.hidden_activations(obs)
         pi_layers = [h.post for h in activations["policy"]]
         vf_layers = [h.post for h in activations["value"]]

@@ -14,8 +14,9 @@ penalty (coef/2)*||theta - theta_0||^2, coupled (g += coef*(theta - theta_0)) or
 from __future__ import annotations
 
 import torch
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticPolicy
+
+from sweep.training.hooks import Hook
 
 GROUPS = {
     "policy": ("mlp_extractor.policy_net.", "action_net."),
@@ -71,18 +72,14 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
     return cls(groups, **kwargs)
 
 
-class L2Regularization(BaseCallback):
+class L2Regularization(Hook):
     """Switches the learner's L2 on when training starts (SB3: ``l2_optimizer``; JAX: the same decay in
     its optax chain, ``sweep.agents.jax_ppo``)."""
 
     anchor = "zero"
 
     def __init__(self, coef: float = 1e-3, mode: str = "decoupled", params=("policy", "value"), biases: bool = True):
-        super().__init__()
         self.coef, self.mode, self.params, self.biases = float(coef), mode, tuple(params), bool(biases)
 
-    def _init_callback(self) -> None:
-        self.model.use_l2(self.coef, self.mode, self.params, self.biases, anchor=self.anchor)
-
-    def _on_step(self) -> bool:
-        return True
+    def setup(self, learner, training) -> None:
+        learner.use_l2(self.coef, self.mode, self.params, self.biases, anchor=self.anchor)

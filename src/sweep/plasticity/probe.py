@@ -1,6 +1,6 @@
 """A direct plasticity probe (Lyle et al. 2022, "Understanding and preventing capacity loss in RL").
 
-At every change of the wind and at the end of training, a *copy* of the policy network is fitted for N
+At every change of condition (the wind's segment) and at the end of training, a *copy* of the policy network is fitted for N
 steps (Adam, minibatches of the most recent observations) to fixed random regression targets,
 
     min_theta  1/B sum_x || f_theta(x) - y(x) ||^2,     y = g(x) / std(g(x)),
@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, fresh_parameters, orthogonal
-from sweep.plasticity.batch import recent_rollout
+from sweep.training.hooks import Hook
+from sweep.training.records import Condition
 
 
 def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batch_size: int = 256,
@@ -75,42 +75,37 @@ def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batc
     return float(losses[tenth - 1]), float(losses[-tenth:].mean())
 
 
-class PlasticityProbe(BaseCallback):
-    """Runs ``probe_fit`` at the first rollout end after each change of the wind segment; ``measure()`` at the
-    end of training is called by the run (logged at the final step, like the evaluation)."""
+class PlasticityProbe(Hook):
+    """Runs ``probe_fit`` at the first rollout end under each new condition (``at_change``) and after the last
+    update (``at_end``), on the learner's ``observations`` most recent observations; ``steps=0``: never."""
 
     def __init__(self, steps: int = 500, batch_size: int = 256, lr: float = 1e-3, observations: int = 1024,
                  activation: str = "tanh", seed: int = 0, fresh: bool = True) -> None:
-        super().__init__()
         self.fresh = bool(fresh)
         self.steps, self.batch_size, self.lr = int(steps), int(batch_size), float(lr)
         self.n_obs, self.activation, self.seed = int(observations), activation, int(seed)
-        self.segment: int | None = None
         self.probes = 0
 
     def state_dict(self) -> dict:
-        return {"segment": self.segment, "probes": self.probes}
+        return {"probes": self.probes}
 
     def load_state_dict(self, state: dict) -> None:
-        self.segment, self.probes = state["segment"], state["probes"]
+        self.probes = state["probes"]
 
-    def _on_step(self) -> bool:
-        return True
-
-    def measure(self) -> dict[str, float]:
-        obs = recent_rollout(self.model.rollout_buffer, self.n_obs)[0]
+    def measure(self, learner: Learner) -> dict[str, float]:
+        if self.steps <= 0:
+            return {}
+        obs = learner.recent_samples(self.n_obs).observations
         args = (obs, self.steps, self.batch_size, self.lr, self.seed + self.probes, self.activation)
-        early, final = probe_fit(self.model, *args)
+        early, final = probe_fit(learner, *args)
         out = {"plasticity/probe_loss_early": early, "plasticity/probe_loss": final}
         if self.fresh:
-            out["plasticity/probe_loss_fresh"] = probe_fit(self.model, *args, fresh=True)[1]
+            out["plasticity/probe_loss_fresh"] = probe_fit(learner, *args, fresh=True)[1]
         self.probes += 1
         return out
 
-    def _on_rollout_end(self) -> None:
-        env = self.training_env
-        segment = int(env.global_step // env.wind.segment_steps)
-        if self.segment is not None and segment != self.segment:
-            for key, value in self.measure().items():
-                self.logger.record(key, value)
-        self.segment = segment
+    def at_change(self, learner: Learner, condition: Condition) -> dict[str, float]:
+        return self.measure(learner)
+
+    def at_end(self, learner: Learner, update) -> dict[str, float]:
+        return self.measure(learner)

@@ -25,19 +25,19 @@ C_prev has two readings, both available (``previous``):
   * ``shifted``: Eq. 6 read literally, the mean over the window ending one episode earlier
     (indices N-T .. N-1).
 
-SB3 resets the optimizer's LR from ``model.lr_schedule`` at every ``train()``; RECOM therefore
-replaces that schedule with ``AdaptiveLR``, whose value it sets, so the new LR is what the next
-update uses and what ``train/learning_rate`` reports.
+A hook: at set-up it takes over the learning rate (``Learner.set_learning_rate``: the rate in force, from then
+on changed only by RECOM), so the new LR is what the next update uses and what ``train/learning_rate`` reports.
+The loss of each update comes from its ``UpdateRecord`` (``mean_loss``), the episodes from each ``RolloutRecord``.
 """
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.cadence import Cadence
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord, UpdateRecord
 
 
 def retrospective_cost(returns: np.ndarray, losses: np.ndarray) -> float:
@@ -58,21 +58,10 @@ def recom_lr(lr: float, gradient: float, gain: float, lr_min: float, lr_max: flo
     return new, new != unclipped
 
 
-@dataclass
-class AdaptiveLR:
-    """A learning-rate 'schedule' for SB3 whose value RECOM sets (ignores training progress)."""
-
-    value: float
-
-    def __call__(self, progress_remaining: float) -> float:
-        return self.value
-
-
-class Recom(BaseCallback):
+class Recom(Hook):
     def __init__(self, interval: int = 40960, window: int = 10, gain: float = 5e-6,
                  lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update",
                  gradient: str = "absolute", reward: str = "return") -> None:
-        super().__init__()
         self.reward = reward
         self.interval, self.window, self.gain = int(interval), int(window), float(gain)
         self.lr_min, self.lr_max, self.previous, self.gradient = float(lr_min), float(lr_max), previous, gradient
@@ -80,65 +69,53 @@ class Recom(BaseCallback):
         self.last_loss: float | None = None
         self.cost_prev: float | None = None
         self.cadence = Cadence(self.interval)   # an LR update every `interval` timesteps
-        self.schedule: AdaptiveLR | None = None
+        self.lr: float | None = None
 
     # -- state (for checkpoints) --
     def state_dict(self) -> dict:
         return {"episodes": list(self.episodes), "last_loss": self.last_loss, "cost_prev": self.cost_prev,
-                "next_update": self.cadence.next_at, "lr": self.schedule.value if self.schedule else None}
+                "next_update": self.cadence.next_at, "lr": self.lr}
 
     def load_state_dict(self, state: dict) -> None:
         self.episodes.clear()
         self.episodes.extend(tuple(e) for e in state["episodes"])
         self.last_loss, self.cost_prev, self.cadence.next_at = state["last_loss"], state["cost_prev"], state["next_update"]
-        self.schedule.value = state["lr"]  # called after _init_callback (see sweep.checkpoint)
+        self.lr = self.learner.set_learning_rate(state["lr"])
 
-    # -- SB3 hooks --
-    def _init_callback(self) -> None:
-        self.schedule = AdaptiveLR(float(self.model.lr_schedule(1.0)))
-        self.model.lr_schedule = self.schedule
+    # -- the loop's moments --
+    def setup(self, learner, training) -> None:
+        """The learning rate in force becomes RECOM's to set (the learner's schedule no longer moves it)."""
+        self.learner = learner
+        self.lr = learner.set_learning_rate()
 
-    def _on_rollout_start(self) -> None:
-        """After a train(): remember the mean total loss of that update (SB3 logged its parts)."""
-        logged = self.model.logger.name_to_value
-        if "train/value_loss" in logged:
-            self.last_loss = float(logged["train/policy_gradient_loss"]
-                                   + self.model.vf_coef * logged["train/value_loss"]
-                                   + self.model.ent_coef * logged["train/entropy_loss"])
+    def after_update(self, learner, update: UpdateRecord) -> dict[str, float]:
+        """L[t] of the episodes that end from now on: the update's mean total loss."""
+        self.last_loss = update.mean_loss
+        return {}
 
-    def _on_step(self) -> bool:
-        if self.last_loss is None:
-            return True
-        for info in self.locals["infos"]:
-            if "episode" in info:
-                r = float(info["episode"]["r"])
-                self.episodes.append((r / max(int(info["episode"]["l"]), 1) if self.reward == "per_step" else r,
-                                      self.last_loss))
-        return True
+    def after_rollout(self, learner, rollout: RolloutRecord) -> dict[str, float]:
+        if self.last_loss is not None:
+            for ep in rollout.episodes:
+                self.episodes.append((ep.ret / max(ep.length, 1) if self.reward == "per_step" else ep.ret, self.last_loss))
+        return self.update() if self.cadence.due(rollout.timesteps) else {}
 
-    def _on_rollout_end(self) -> None:
-        if self.cadence.due(self.num_timesteps):
-            self.update()
-
-    def update(self) -> None:
+    def update(self) -> dict[str, float]:
+        """Eqs. 5-8 on the episodes kept; sets the learner's learning rate."""
         episodes = np.array(self.episodes, dtype=np.float64).reshape(-1, 2)
         current = episodes[-self.window:]
         if len(current) == 0:
-            return
+            return {}
         cost = retrospective_cost(current[:, 0], current[:, 1])
         if self.previous == "shifted":
             prev = episodes[:-1][-self.window:]
             cost_prev = retrospective_cost(prev[:, 0], prev[:, 1]) if len(prev) else None
         else:
             cost_prev = self.cost_prev
-        lr = self.schedule.value
+        out = {}
         if cost_prev is not None:
             gradient = cost_gradient(cost, cost_prev, self.gradient)
-            lr, at_bound = recom_lr(lr, gradient, self.gain, self.lr_min, self.lr_max)
-            self.schedule.value = lr
-            self.logger.record("recom/cost_prev", cost_prev)
-            self.logger.record("recom/cost_gradient", gradient)
-            self.logger.record("recom/at_bound", float(at_bound))
+            lr, at_bound = recom_lr(self.lr, gradient, self.gain, self.lr_min, self.lr_max)
+            self.lr = self.learner.set_learning_rate(lr)
+            out = {"recom/cost_prev": cost_prev, "recom/cost_gradient": gradient, "recom/at_bound": float(at_bound)}
         self.cost_prev = cost
-        self.logger.record("recom/cost", cost)
-        self.logger.record("recom/learning_rate", lr)
+        return {**out, "recom/cost": cost, "recom/learning_rate": self.lr}

@@ -1,10 +1,10 @@
 """What every remedy that writes the networks shares: when it acts, and how it re-initialises units.
 
-``Remedy`` is an SB3 callback that acts after every ``every_updates``-th PPO update, at the start of the
-next rollout (SB3's ``_on_rollout_start``: after ``train()``, before the next rollout fills), so both
-learners see the same sequence of updates, rollouts and remedy events. Remedies that read activations
-get the ``batch_size`` most recent observations of the rollout the update learned from. Each logs what it
-did under ``remedy/<name>/<what>``. It talks to the learner only through ``sweep.agents.learner.Learner``.
+``Remedy`` is a hook (``sweep.training.hooks``) that acts after every ``every_updates``-th PPO update that
+training continues from (``after_update``; not after the last), so both learners see the same sequence of
+updates, rollouts and remedy events. Remedies that read activations get the ``batch_size`` most recent
+observations of the rollout the update learned from. Each logs what it did under ``remedy/<name>/<what>``
+(``name``: its key in the agent config). It talks to the learner only through ``sweep.agents.learner.Learner``.
 
 ``UnitSurgery`` re-initialises hidden units (ReDo, CBP): for unit i of hidden layer k, fresh incoming
 weights (row i of the layer's weight, drawn from the layer's own init), a zero bias (LayerNorm scale 1,
@@ -14,11 +14,11 @@ the moment of the reset; optionally Adam's moments of exactly those entries are 
 from __future__ import annotations
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import HIDDEN_GAIN, Network, orthogonal
-from sweep.plasticity.batch import recent_rollout
+from sweep.training.hooks import Hook
+from sweep.training.records import RolloutRecord, UpdateRecord
 
 
 NETWORKS = ("policy", "value")
@@ -71,26 +71,20 @@ class UnitSurgery:
             self.learner.reset_optimizer(self.masks)
 
 
-class Remedy(BaseCallback):
+class Remedy(Hook):
     """Acts on the learner after every ``every_updates``-th update (see the module docstring)."""
 
-    name = "remedy"
     reads_activations = False
 
     def __init__(self, every_updates: int = 1, batch_size: int = 1024) -> None:
-        super().__init__()
         self.every, self.batch_size = int(every_updates), int(batch_size)
-        self.rollouts = 0   # rollouts ended so far = updates that follow them
-        self.updates = 0    # updates this remedy has already handled
+        self.updates = 0    # updates this remedy has handled
         self.observations: np.ndarray | None = None
 
     # -- what a remedy implements --
     def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
         """Change the learner after an update; returns what to log under remedy/<name>/."""
         raise NotImplementedError
-
-    def after_update(self, learner: Learner) -> None:
-        """Called after every update, acting or not (e.g. CBP ages its units)."""
 
     def extra_state(self) -> dict:
         return {}
@@ -100,26 +94,20 @@ class Remedy(BaseCallback):
 
     # -- checkpoints --
     def state_dict(self) -> dict:
-        return {"rollouts": self.rollouts, "updates": self.updates, **self.extra_state()}
+        return {"updates": self.updates, **self.extra_state()}
 
     def load_state_dict(self, state: dict) -> None:
-        self.rollouts, self.updates = state["rollouts"], state["updates"]
+        self.updates = state["updates"]
         self.load_extra_state(state)
 
-    # -- SB3 hooks --
-    def _on_step(self) -> bool:
-        return True
+    # -- the loop's moments --
+    def after_rollout(self, learner: Learner, rollout: RolloutRecord) -> dict[str, float]:
+        if self.reads_activations:   # the rollout the coming update learns from, in time order
+            self.observations = learner.recent_samples(self.batch_size).observations
+        return {}
 
-    def _on_rollout_end(self) -> None:
-        self.rollouts += 1
-        if self.reads_activations:
-            self.observations = recent_rollout(self.model.rollout_buffer, self.batch_size)[0]
-
-    def _on_rollout_start(self) -> None:
-        if self.rollouts == self.updates:  # no update since the last call (first rollout, or just resumed)
-            return
-        self.updates = self.rollouts
-        self.after_update(self.model)
-        if self.updates % self.every == 0:
-            for key, value in self.act(self.model, self.observations).items():
-                self.logger.record(f"remedy/{self.name}/{key}", float(value))
+    def after_update(self, learner: Learner, update: UpdateRecord) -> dict[str, float]:
+        self.updates += 1
+        if self.updates % self.every:
+            return {}
+        return {f"remedy/{self.name}/{key}": float(value) for key, value in self.act(learner, self.observations).items()}

@@ -1,0 +1,93 @@
+"""The training loop, the same for both learners: collect -> hooks -> log -> update -> hooks, one PPO update per turn.
+
+    for each turn, until ``total_timesteps``:
+        rollout = learner.collect()                          # RolloutRecord
+        log(hooks.after_rollout(rollout) [+ hooks.at_change(condition), when the condition changed]
+            + what the previous update's hooks returned)      # SB3's log line, at the timesteps after the rollout
+        update = learner.update()                            # UpdateRecord
+        pending = update.metrics() + hooks.after_update(update)   # logged with the next rollout's line
+    log(hooks.at_end(last update)) at the final timestep
+
+This is SB3's ``learn()`` order (an update's ``train/*`` appear in the next rollout's log line, and the last
+update's never), so the logged histories are those SB3's loop wrote (tests/test_reference_history.py).
+``Training`` holds what the loop owns beside the learner: the env, the hooks, the logger it writes to, the
+metrics waiting for the next line and the condition of the last rollout; ``sweep.checkpoint`` saves and restores it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from stable_baselines3.common.logger import Logger
+
+from sweep.training.hooks import Hooks, Metrics
+from sweep.training.records import Condition, UpdateRecord
+
+
+@dataclass
+class Training:
+    learner: Any                          # sweep.agents.learner.Learner
+    env: Any                              # the learner's HoverVecEnv
+    hooks: Hooks
+    total_timesteps: int
+    logger: Logger = field(default_factory=lambda: Logger(folder=None, output_formats=[]))  # written to, never read
+    label: str = "run"                    # the run's name in progress lines
+    checkpoint_path: Path | None = None   # where the checkpointer hook writes
+    flush: Callable[[], None] | None = None   # makes the store hold everything logged so far (before a checkpoint)
+    pending: Metrics = field(default_factory=dict)   # for the next log line (an update's metrics and its hooks')
+    condition: Condition | None = None    # at the last rollout end
+    iteration: int = 0
+
+    def write(self, metrics: Metrics) -> None:
+        for key, value in metrics.items():
+            self.logger.record(key, value)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"pending": dict(self.pending), "condition": self.condition}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.pending, self.condition = dict(state["pending"]), state["condition"]
+
+
+def train(training: Training, resume: dict | None = None) -> UpdateRecord | None:
+    """Train ``training.learner`` to ``training.total_timesteps``, continuing the checkpoint ``resume`` if given
+    (one taken at the end is only restored); returns the last update's record (None if no update ran)."""
+    from sweep import checkpoint   # the checkpoint module saves Training; imported here, it imports no loop
+
+    t, learner = training, training.learner
+    learner.set_logger(t.logger)
+    if resume is not None:
+        checkpoint.restore_loop(learner, resume)
+    total = learner.begin(t.total_timesteps - learner.num_timesteps, reset=resume is None)
+    for hook in t.hooks:
+        hook.setup(learner, t)
+    if resume is not None:
+        checkpoint.restore(t, resume)
+    if learner.num_timesteps >= total:   # a checkpoint taken at the end: restored (networks, kept policies), no more
+        return None
+
+    update = None
+    while learner.num_timesteps < total:
+        rollout = learner.collect()
+        t.iteration += 1
+        metrics = t.hooks.call("after_rollout", learner, rollout)
+        if t.condition is not None and rollout.condition != t.condition:
+            metrics.update(t.hooks.call("at_change", learner, rollout.condition))
+        t.condition = rollout.condition
+        t.write({**t.pending, **metrics})
+        t.pending = {}
+        learner.log_rollout(t.iteration)
+        update = learner.update()
+        if learner.num_timesteps >= total:
+            break
+        t.pending = update.metrics()
+        t.hooks.call("after_update", learner, update, on_metrics=t.pending.update)
+    end = t.hooks.call("at_end", learner, update)
+    if end:
+        t.write(end)
+        t.logger.dump(step=learner.num_timesteps)
+    return update
+
+
+__all__ = ["Training", "train"]

@@ -1,0 +1,92 @@
+"""What one rollout and one PPO update return: typed records, the only messages between a learner and the hooks.
+
+PureJaxRL's update returns its metrics; here both learners do the same (``Learner.collect`` and
+``Learner.update``, tests/test_learner.py), and a hook reads what it needs from the record instead of from a
+logger. ``UpdateRecord.metrics()`` is what the loop logs under ``train/``, the names and values SB3's
+``PPO.train`` logs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Episode(NamedTuple):
+    """One episode that finished in a rollout: its return (task units), length in steps, and whether it crashed."""
+
+    ret: float
+    length: int
+    crashed: bool
+
+
+class Samples(NamedTuple):
+    """The most recent steps of a rollout (``Learner.recent_samples``): what diagnostics and remedies read."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    advantages: np.ndarray
+    returns: np.ndarray
+
+
+@dataclass(frozen=True)
+class Condition:
+    """The condition the vehicles flew under at the end of a rollout: the schedule's segment and its wind."""
+
+    segment: int
+    wind_speed: float
+
+
+@dataclass(frozen=True)
+class RolloutRecord:
+    """One rollout: the timesteps after it, the episodes it finished (in the order they ended), SB3's mean return
+    of the last 100 finished episodes (``rollout/ep_rew_mean``; None before the first), and the condition at its end."""
+
+    index: int
+    timesteps: int
+    episodes: tuple[Episode, ...]
+    mean_recent_return: float | None
+    condition: Condition
+
+
+@dataclass(frozen=True)
+class UpdateRecord:
+    """One PPO update (all its epochs): the learning rate and clip range in force, the loss terms as means over
+    the minibatches that ran, the total loss of the last minibatch (SB3's ``train/loss``), approx KL (the last
+    epoch's mean), clip fraction, explained variance, the epochs run (fewer than ``n_epochs`` when
+    ``target_kl`` stopped it), SB3's update counter (``train/n_updates``, epochs so far) and the policy's std."""
+
+    index: int
+    timesteps: int
+    learning_rate: float
+    clip_range: float
+    policy_gradient_loss: float
+    value_loss: float
+    entropy_loss: float
+    loss: float
+    approx_kl: float
+    clip_fraction: float
+    explained_variance: float
+    epochs: int
+    n_updates: int
+    std: float | None
+    vf_coef: float
+    ent_coef: float
+
+    @property
+    def mean_loss(self) -> float:
+        """The mean total PPO loss over the update's minibatches: pg + vf_coef * value + ent_coef * entropy."""
+        return float(self.policy_gradient_loss + self.vf_coef * self.value_loss + self.ent_coef * self.entropy_loss)
+
+    def metrics(self) -> dict[str, float]:
+        """SB3's ``train/*`` names and values."""
+        out = {"train/entropy_loss": self.entropy_loss, "train/policy_gradient_loss": self.policy_gradient_loss,
+               "train/value_loss": self.value_loss, "train/approx_kl": self.approx_kl,
+               "train/clip_fraction": self.clip_fraction, "train/loss": self.loss,
+               "train/explained_variance": self.explained_variance}
+        if self.std is not None:
+            out["train/std"] = self.std
+        out.update({"train/n_updates": self.n_updates, "train/clip_range": self.clip_range,
+                    "train/learning_rate": self.learning_rate})
+        return out
