@@ -406,6 +406,7 @@ def loop_worker(kind: str) -> dict:
     """The steady end-to-end rate of one learner through ``sweep.run.run``, with whichever ``sweep`` the process
     imports (``bench.py loop-worker KIND``; ``PYTHONPATH`` chooses the commit)."""
     steps = E2E_STEPS if kind == "jax" else SB3_E2E_STEPS
+    _timed_run(["experiment=paper", "train.total_timesteps=4096"], learner=kind)   # warm-up: compilation, imports
     walls = [_timed_run(["experiment=paper", f"train.total_timesteps={n}"], learner=kind)[1] for n in steps]
     return {"rate": (steps[1] - steps[0]) / (walls[1] - walls[0])}
 

@@ -17,8 +17,8 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
 
 # conf/hooks/default.yaml, in order (the checkpointer, which runs last, moved to the end)
-DEFAULT_HOOKS = ["PlasticityDiagnostics", "EnvMonitor", "PlasticityProbe", "PeriodicEvaluation", "BestPolicies",
-                 "NonFiniteGuard", "ProgressLine", "Checkpointer"]
+DEFAULT_HOOKS = ["NonFiniteGuard", "PlasticityDiagnostics", "EnvMonitor", "PlasticityProbe", "PeriodicEvaluation",
+                 "BestPolicies", "ProgressLine", "Checkpointer"]
 # agent YAML -> the remedies it switches on (their classes, in config order)
 REMEDIES = {"ppo": [], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
             "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
@@ -201,7 +201,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "7e0dde1e71657976"   # the hooks (names and classes) added, checkpoint format 2
+JOB_KEY = "daf5666a6b5bfe01"   # the hooks (in order, their settings) added, checkpoint format 2
 
 
 def test_the_resume_key_changes_only_with_the_settings():

@@ -88,10 +88,20 @@ def test_each_update_returns_its_record_and_the_loop_logs_it_as_sb3_does(name):
 def test_a_hook_without_the_one_it_requires_is_one_config_error(store, tmp_path):
     """best_policies reads the evaluation hook: dropping the evaluation is an error before anything is tracked."""
     with pytest.raises(ConfigError, match=r"^hooks: hook 'best_policies' \(BestPolicies\) requires hook 'evaluation' "
-                                          r"before it; the hooks are, in order: diagnostics, env_monitor, probe, "):
+                                          r"before it; the hooks are, in order: non_finite_guard, diagnostics, "):
         run(compose_cfg([*TINY, "~hooks.evaluation"]), tmp_path / "job")
     assert MlflowClient(store).search_experiments() == [] or not MlflowClient(store).search_runs(
         [e.experiment_id for e in MlflowClient(store).search_experiments()])
+
+
+@pytest.mark.parametrize("override, message", [
+    ("+hooks.probe.stepz=3", r"^hooks: Error in call to target 'sweep.plasticity.probe.PlasticityProbe'"),
+    ("+hooks.odd._target_=collections.OrderedDict", r"^hooks: odd: collections.OrderedDict built a OrderedDict, not a "),
+])
+def test_a_hook_that_cannot_be_built_is_one_config_error(override, message, tmp_path):
+    with pytest.raises(ConfigError, match=message) as err:
+        run(compose_cfg([*TINY, override]), tmp_path / "job")
+    assert "\n" not in str(err.value)
 
 
 def test_hooks_need_distinct_names_and_the_checkpointer_acts_last():

@@ -19,9 +19,14 @@ def modules() -> dict[str, Path]:
 
 
 def imports(path: Path, known: dict[str, Path]) -> set[str]:
-    """The ``sweep`` modules a file imports, at module level or inside functions."""
+    """The ``sweep`` modules a file imports, at module level or inside functions (not those under
+    ``if TYPE_CHECKING:``, which are for annotations and never run)."""
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):   # drop the TYPE_CHECKING blocks
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            node.body = []
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names if a.name in known}
         elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("sweep"):

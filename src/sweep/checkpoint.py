@@ -19,22 +19,28 @@ import json
 import os
 import random
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from sweep.config import ConfigError, settings
 from sweep.status import read_json, update_json
-from sweep.training.hooks import Hook, Training   # Training: the loop's state (sweep.training.loop), which imports this
+from sweep.training.hooks import Hook
+
+if TYPE_CHECKING:
+    from sweep.training.loop import Training
 
 
 def job_key(cfg: DictConfig, uri: str) -> str:
-    """Stable id of a job: its resolved settings (``config.settings``) without ``resume``, the names and classes of
-    its hooks (conf/hooks/: a run with another hook list is another job), and the tracking store."""
+    """Stable id of a job: its resolved settings (``config.settings``) without ``resume`` and the progress line's
+    period, its hooks in order with their resolved settings (a run with another hook list, or a hook set otherwise,
+    is another job), and the tracking store."""
     container = settings(cfg)
-    container["hooks"] = [[name, spec.get("_target_")] for name, spec in cfg.get("hooks", {}).items()]
+    hooks = OmegaConf.to_container(cfg.get("hooks", OmegaConf.create({})), resolve=True)
+    hooks.get("progress", {}).pop("every_s", None)
+    container["hooks"] = [[name, spec] for name, spec in hooks.items()]
     container.pop("resume", None)
     container.get("train", {}).pop("progress_every_s", None)
     text = json.dumps({"config": container, "uri": uri}, sort_keys=True, default=str)

@@ -224,7 +224,7 @@ class Policy:
 
 @dataclass
 class Remedy(Target):
-    """A conf/remedy/ block: the callback it builds and whether the agent uses it."""
+    """A conf/remedy/ block: the hook it builds and whether the agent uses it."""
     enabled: bool = MISSING
 
 
@@ -412,7 +412,7 @@ def validate(cfg: DictConfig) -> None:
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
     # An agent block with a _target_ that the schema does not list (``+agent.<name>._target_=...``) is an extra
-    # callback, built like a remedy (e.g. tests/faults.py); its keys are its class's arguments, checked there.
+    # hook, built like a remedy (e.g. tests/faults.py); its keys are its class's arguments, checked there.
     # (Every conf/remedy/ block is a field of Agent: tests/test_config.py checks it.)
     known = {f.name for f in fields(Agent)}
     for name in [k for k, v in plain.get("agent", {}).items() if k not in known and isinstance(v, dict) and "_target_" in v]:

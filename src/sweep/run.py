@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.logger import CSVOutputFormat, Logger
@@ -77,7 +78,7 @@ def job_record(cfg: DictConfig) -> JobRecord:
 
 def run(cfg: DictConfig, out_dir: Path) -> str:
     """Train and evaluate one agent/wind/seed (continuing its checkpoint if any); returns the MLflow run id."""
-    hooks = checked(cfg)
+    hooks = validated_hooks(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
     limit_threads(cfg)
     set_random_seed(cfg.seed)
@@ -93,8 +94,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True)
     model = build_learner(cfg.agent, env, cfg.seed, cfg.train.total_timesteps)
     run_id = previous.get("run_id") if previous else None
-    with TrackedRun(cfg.tracking, flatten(settings(cfg)), {**tags, "checkpoint_dir": str(record.dir)},
-                    run_id=run_id) as tracked:
+    params = {**flatten(settings(cfg)), "hooks": ",".join(h.name for h in hooks)}   # the hooks that ran, in order
+    with TrackedRun(cfg.tracking, params, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
         record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
         log.info("[%s] MLflow run %s in %s%s", tags["run_name"], tracked.run_id, tracked.uri,
@@ -115,7 +116,7 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     return tracked.run_id
 
 
-def checked(cfg: DictConfig) -> Hooks:
+def validated_hooks(cfg: DictConfig) -> Hooks:
     """Everything that can be wrong with a config, before anything runs (a ConfigError, one line): the schema, the
     process's float mode, and the hook list; returns the run's hooks (``sweep.training.hooks.build_hooks``)."""
     validate(cfg)
@@ -125,8 +126,8 @@ def checked(cfg: DictConfig) -> Hooks:
         raise ConfigError(str(err)) from None
     try:
         return build_hooks(cfg)
-    except ValueError as err:
-        raise ConfigError(f"hooks: {err}") from None
+    except (ValueError, TypeError, InstantiationException) as err:   # a bad order, argument or class
+        raise ConfigError(f"hooks: {str(err).splitlines()[0]}") from None
 
 
 def limit_threads(cfg: DictConfig) -> None:

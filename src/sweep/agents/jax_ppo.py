@@ -16,7 +16,7 @@ Same algorithm, hyperparameters and logged names as ``stable_baselines3.PPO`` wi
   the update stops at the first minibatch whose approx KL exceeds 1.5 x target_kl, before its step, as
   SB3 does; the global RNG then advances by the permutations of the epochs that ran, as SB3's does.
 * the learning rate is an argument of that call, read from ``lr_schedule`` before every update as SB3
-  does, so RECOM's ``AdaptiveLR`` and ``agent.ppo.lr_schedule`` drive it unchanged; L2 (``use_l2``) is the
+  does, so RECOM (``set_learning_rate``) and ``agent.ppo.lr_schedule`` drive it unchanged; L2 (``use_l2``) is the
   same coupled (Adam ``weight_decay``) or decoupled (AdamW) decay on the same parameters, toward 0 or
   toward theta_0 (L2-Init).
 * the ``Learner`` contract (``sweep.agents.learner``). The weights live in three copies kept in step after
@@ -24,9 +24,10 @@ Same algorithm, hyperparameters and logged names as ``stable_baselines3.PPO`` wi
   ``opt_state`` (same tree), and the compiled rollout's float32 export (``_export_weights``).
 
 It subclasses SB3's ``OnPolicyAlgorithm``, so ``learn()``, the logger, ``rollout/*`` and ``time/*``
-metrics, the episode buffer and every callback hook are SB3's own. One difference: callbacks'
-``on_step`` runs once per compiled chunk of steps (a chunk ends where an episode ends, or at the end of
-the rollout), with ``locals["infos"]`` of the chunk's last step, so every finished episode is seen.
+metrics, the episode buffer and the steps the project's loop drives (``sweep.agents.onpolicy``) are SB3's own.
+One difference: an SB3 callback's ``on_step`` (here only the rollout's episode collector) runs once per compiled
+chunk of steps (a chunk ends where an episode ends, or at the end of the rollout), with ``locals["infos"]`` of
+the chunk's last step, so every finished episode is seen.
 
 Only the fast backend can be stepped from the compiled rollout (``env.backend=fast``).
 """
@@ -277,7 +278,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
                                 episode_starts=buf.episode_starts, values=buf.values, log_probs=buf.log_probs)
         kernel = env.kernel
         t = 0
-        while t < n_rollout_steps:  # the weights are read at every call: a callback may have written them
+        while t < n_rollout_steps:  # the weights are read at every call (a written weight acts at once)
             policy = rollout.Policy(pi=rollout.Mlp(*self._pi), vf=rollout.Mlp(*self._vf), log_std=self._log_std,
                                     relu=self._relu, layer_norm=self.layer_norm)
             t_next = rollout.fly(t, n_rollout_steps, obs, episode_starts, dones, noise, wind, policy, self.gamma, buffer,

@@ -53,6 +53,9 @@ class Learner(Protocol):
     def collect(self) -> RolloutRecord:
         """One rollout into the rollout buffer."""
 
+    def set_logger(self, logger) -> None:
+        """The SB3 ``Logger`` the learner's log lines go to (the loop's: written to, never read)."""
+
     def log_rollout(self, iteration: int) -> None:
         """Write the rollout's log line (``rollout/*``, ``time/*``) with everything recorded since the last."""
 

@@ -3,11 +3,12 @@ keeping, the NaN guard, the checkpointer, the progress line), one class each, bu
 
 A hook has one method per moment of the loop (``sweep.training.loop``) and *returns* what it wants logged:
 
-    setup(learner, training)        training starts (before a checkpoint is restored into the hooks)
+    setup(learner, training)        training starts; when resuming, the learner has its timesteps and episode
+                                    buffers back, its weights and the hooks' states come after setup
     after_rollout(learner, rollout) a rollout ended, before the update that learns from it
     at_change(learner, condition)   the first rollout end under a new condition of the schedule
     after_update(learner, update)   an update ended and training goes on (the next rollout uses what hooks leave)
-    at_end(learner, update)         the last update ended (its metrics are logged at the final step)
+    at_end(learner, update)         the last update ended (what the hooks return is logged at the final step)
 
 Its state (``state_dict`` / ``load_state_dict``) is checkpointed under its name, the config key it was built
 from. A hook that reads another's result names it in ``requires`` and finds it in ``training.hooks[name]``
@@ -30,8 +31,7 @@ from sweep.training.records import Condition, RolloutRecord, UpdateRecord
 
 if TYPE_CHECKING:
     from sweep.agents.learner import Learner
-
-Training = Any   # sweep.training.loop.Training (not imported: the loop imports this module)
+    from sweep.training.loop import Training
 
 log = logging.getLogger("sweep")
 Metrics = dict[str, float]
@@ -89,7 +89,10 @@ class Hooks:
         return iter(self.hooks)
 
     def __getitem__(self, name: str) -> Hook:
-        return next(h for h in self.hooks if h.name == name)
+        for hook in self.hooks:
+            if hook.name == name:
+                return hook
+        raise KeyError(f"no hook {name!r}; the hooks are: {', '.join(h.name for h in self.hooks)}")
 
     def __contains__(self, name: str) -> bool:
         return any(h.name == name for h in self.hooks)

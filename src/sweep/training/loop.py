@@ -37,7 +37,6 @@ class Training:
     flush: Callable[[], None] | None = None   # makes the store hold everything logged so far (before a checkpoint)
     pending: Metrics = field(default_factory=dict)   # for the next log line (an update's metrics and its hooks')
     condition: Condition | None = None    # at the last rollout end
-    iteration: int = 0
 
     def write(self, metrics: Metrics) -> None:
         for key, value in metrics.items():
@@ -70,14 +69,13 @@ def train(training: Training, resume: dict | None = None) -> UpdateRecord | None
     update = None
     while learner.num_timesteps < total:
         rollout = learner.collect()
-        t.iteration += 1
         metrics = t.hooks.call("after_rollout", learner, rollout)
         if t.condition is not None and rollout.condition != t.condition:
             metrics.update(t.hooks.call("at_change", learner, rollout.condition))
         t.condition = rollout.condition
         t.write({**t.pending, **metrics})
         t.pending = {}
-        learner.log_rollout(t.iteration)
+        learner.log_rollout(rollout.index)
         update = learner.update()
         if learner.num_timesteps >= total:
             break
