@@ -20,7 +20,7 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 DEFAULT_HOOKS = ["NonFiniteGuard", "PlasticityDiagnostics", "EnvMonitor", "PlasticityProbe", "PeriodicEvaluation",
                  "BestPolicies", "ProgressLine", "Checkpointer"]
 # agent YAML -> the remedies it switches on (their classes, in config order)
-REMEDIES = {"ppo": [], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
+REMEDIES = {"ppo": [], "reset_all": ["ResetAll"], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
             "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
             "shrink_perturb": ["ShrinkPerturb"], "cbp_l2": ["L2Regularization", "ContinualBackprop"],
             "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"],
@@ -201,7 +201,7 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "daf5666a6b5bfe01"   # the hooks (in order, their settings) added, checkpoint format 2
+JOB_KEY = "479d3069d6dde638"   # the hooks (in order, their settings) and agent.reset_all added, checkpoint format 2
 
 
 def test_the_resume_key_changes_only_with_the_settings():

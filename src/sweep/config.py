@@ -290,6 +290,7 @@ class Agent:
     shrink_perturb: ShrinkPerturb = field(default_factory=ShrinkPerturb)
     cbp: CBP = field(default_factory=CBP)
     l2_init: WeightDecay = field(default_factory=WeightDecay)
+    reset_all: Remedy = field(default_factory=Remedy)
 
 
 @dataclass

@@ -381,6 +381,10 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         adam = self._adam()
         return {k: (np.array(adam.mu[k]), np.array(adam.nu[k])) for k in self.params}
 
+    def reset_optimizer_state(self) -> None:
+        """The optax chain's initial state (zero moments, count 0), as the learner built it."""
+        self.opt_state = self._tx.init(self.params)
+
     def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
         adam = self._adam()
         keep = {k: jnp.asarray(~np.asarray(masks[k], bool)) if k in masks else None for k in adam.mu}

@@ -90,6 +90,9 @@ class Learner(Protocol):
     def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
         """Zero Adam's m and v of the parameter entries where ``masks[name]`` is True; step count kept."""
 
+    def reset_optimizer_state(self) -> None:
+        """Adam as it was built: every moment zero and the step count zero (reset-all)."""
+
     def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Adam's (m, v) per parameter (zeros before the first step)."""
 

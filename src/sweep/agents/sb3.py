@@ -47,12 +47,13 @@ class SB3PPO(StepwiseLearning, PPO):
     def _train_record(self) -> UpdateRecord:
         """SB3's ``PPO.train()``, unchanged; what it logs is caught by a logger of its own and returned."""
         caught = Logger(folder=None, output_formats=[])
-        own, self._logger = self._logger, caught
+        own, self._logger = getattr(self, "_logger", None), caught   # None: a learner not yet given one
         epochs_before = self._n_updates
         try:
             self.train()
         finally:
-            self._logger = own
+            if own is not None:
+                self._logger = own
         v = caught.name_to_value
         return UpdateRecord(
             index=self._updates, timesteps=int(self.num_timesteps), learning_rate=float(v["train/learning_rate"]),
@@ -93,6 +94,10 @@ class SB3PPO(StepwiseLearning, PPO):
             out[name] = (s["exp_avg"].numpy().copy() if "exp_avg" in s else zeros,
                          s["exp_avg_sq"].numpy().copy() if "exp_avg_sq" in s else zeros.copy())
         return out
+
+    def reset_optimizer_state(self) -> None:
+        """torch's Adam creates a parameter's state (step 0, zero moments) at its first step after this."""
+        self.policy.optimizer.state.clear()
 
     def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
         params = dict(self.policy.named_parameters())
