@@ -407,14 +407,13 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         return {"params": self.parameter_arrays(), "opt_state": jax.tree.map(np.asarray, self.opt_state),
                 "noise_rng": self.noise_rng.bit_generator.state, "rng": self.rng.bit_generator.state}
 
-    def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
+    def load_learner_state(self, state: dict[str, Any]) -> None:
         self.params = {k: jnp.asarray(v) for k, v in state["params"].items()}
         self._export_weights()
-        if optimizer:
-            self.opt_state = jax.tree.map(jnp.asarray, state["opt_state"])
-            self.noise_rng.bit_generator.state = state["noise_rng"]
-            if "rng" in state:
-                self.rng.bit_generator.state = state["rng"]
+        self.opt_state = jax.tree.map(jnp.asarray, state["opt_state"])
+        self.noise_rng.bit_generator.state = state["noise_rng"]
+        if "rng" in state:
+            self.rng.bit_generator.state = state["rng"]
 
     def to_sb3(self) -> PPO:
         """An SB3 ``PPO`` with this learner's weights (``PPO.load``-able once saved)."""

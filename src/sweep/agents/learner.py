@@ -106,8 +106,8 @@ class Learner(Protocol):
     def learner_state(self) -> dict[str, Any]:
         """Parameters, optimizer state and the learner's own generators, for a checkpoint."""
 
-    def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
-        """Restore ``learner_state``; without ``optimizer`` only the parameters."""
+    def load_learner_state(self, state: dict[str, Any]) -> None:
+        """Restore ``learner_state`` (parameters, optimizer, the learner's generators)."""
 
 
 __all__ = ["Hidden", "Learner"]

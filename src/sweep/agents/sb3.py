@@ -136,12 +136,11 @@ class SB3PPO(StepwiseLearning, PPO):
         return {"policy": self.policy.state_dict(), "optimizer": self.policy.optimizer.state_dict(),
                 "rng": self.rng.bit_generator.state}
 
-    def load_learner_state(self, state: dict[str, Any], optimizer: bool = True) -> None:
+    def load_learner_state(self, state: dict[str, Any]) -> None:
         self.policy.load_state_dict(state["policy"])
-        if optimizer:
-            self.policy.optimizer.load_state_dict(state["optimizer"])
-            if "rng" in state:
-                self.rng.bit_generator.state = state["rng"]
+        self.policy.optimizer.load_state_dict(state["optimizer"])
+        if "rng" in state:
+            self.rng.bit_generator.state = state["rng"]
 
 
 def _activations(mlp: torch.nn.Sequential, x: torch.Tensor) -> list[Hidden]:
