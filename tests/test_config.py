@@ -46,6 +46,18 @@ def test_every_config_composes_and_validates(agent, wind, experiment):
     assert [type(h).__name__ for h in build_hooks(cfg)] == REMEDIES[agent] + DEFAULT_HOOKS
 
 
+VEHICLES = sorted(p.stem for p in (CONF / "vehicle").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("vehicle,learner", list(itertools.product(VEHICLES, ["sb3", "jax"])))
+def test_every_vehicle_composes_with_every_agent_and_learner(vehicle, learner):
+    assert {"nominal", "payload", "motor"} <= set(VEHICLES)
+    for agent in AGENTS:
+        cfg = compose_cfg([f"agent={agent}", f"vehicle={vehicle}", f"agent.learner={learner}", "wind=flip"])
+        validate(cfg)
+        assert cfg.vehicle.name == vehicle
+
+
 def test_paper_wind_and_experiment():
     cfg = compose_cfg(["wind=paper", "experiment=paper"])
     assert list(cfg.wind.speeds) == [3.0, 2.0, 2.5, 1.5, 2.5]
@@ -93,6 +105,17 @@ INVALID = [
     ("agent.label=5", "agent.label=5: must be a string"),
     ("env.observation_scale=5", "env.observation_scale=5: must be a block with keys velocity, body_rate"),
     ("agent.learners.sb3._partial_=false", "agent.learners.sb3._partial_=False: must be true"),
+    # conditions (conf/wind/, conf/vehicle/, eval.condition)
+    ("vehicle.segments=[]", "vehicle.segments=[]: must be a non-empty list"),
+    ("vehicle=payload vehicle.segments.1.mass=0", "vehicle.segments[1].mass=0: must be a number > 0"),
+    ("vehicle=motor vehicle.segments.1.rotor_efficiency=[1.2,1,1,1]", "vehicle.segments[1].rotor_efficiency=[1.2, 1, 1, 1]: "
+                                                                       "must be 4 numbers in (0, 1]"),
+    ("vehicle=motor vehicle.segments.1.rotor_efficiency=[0,1,1,1]", "vehicle.segments[1].rotor_efficiency=[0, 1, 1, 1]"),
+    ("vehicle=motor vehicle.segments.1.rotor_efficiency=[1,1,1]", "vehicle.segments[1].rotor_efficiency=[1, 1, 1]"),
+    ("wind=flip wind.directions=[[1,0],[-1,0,0]]", "wind.directions=[[1, 0], [-1, 0, 0]]: must be null or a list of non-zero"),
+    ("wind=rotate wind.speeds=[3.0]", "wind.directions: 4 directions for 1 speeds: must be one per speed"),
+    ("eval.mass=-1", "eval.mass=-1: must be a number > 0"),
+    ("eval.condition=last", "eval.condition='last': must be fixed|current|all"),
     # the JAX learner's own rules
     ("agent.learner=jax env.backend=rotorpy", "env.backend='rotorpy': must be fast with agent.learner=jax"),
     ("agent.learner=jax agent.ppo.n_steps=100", "agent.ppo.batch_size=64: must be a divisor of the rollout size"),
@@ -201,7 +224,8 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "479d3069d6dde638"   # the hooks (in order, their settings) and agent.reset_all added, checkpoint format 2
+JOB_KEY = "d2c26e1047a2fd70"   # conditions (issue 33): the vehicle group, wind.directions, eval.condition/mass/rotor_efficiency,
+                                # the evaluation hook's schedules; checkpoint format 3
 
 
 def test_the_resume_key_changes_only_with_the_settings():

@@ -31,6 +31,7 @@ from sweep.agents import rollout as compiled
 from sweep.agents.jax_ppo import JaxPPO, ppo_loss
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.reward import HoverReward
+from sweep.envs.vehicle import VehicleSchedule, VehicleSegment
 from sweep.training.hooks import remedy_hooks
 
 WEIGHT_ATOL = {None: 1e-5, "coupled": 1e-5, "decoupled": 5e-5}
@@ -134,15 +135,28 @@ def test_l2_changes_the_update_only_through_the_decay():
     assert not any(k.startswith(("mlp_extractor.value_net", "value_net")) for k in changed)
 
 
+# The conditions the rollout flies (segments of 500 global steps = 125 vector steps of 4 vehicles, so a 300-step
+# rollout crosses two changes): the wind's speed; its direction alone (the same speed: the trap of an env that
+# rebuilt its wind on a speed change only) with the vehicle's mass and a rotor's efficiency changing on another clock.
+CONDITIONS = {
+    "speed": dict(wind=WindSchedule([3.0, 1.0], segment_steps=500)),
+    "flip+vehicle": dict(wind=WindSchedule([3.0, 3.0], segment_steps=500, directions=[[1, 0, 0], [-1, 0, 0]]),
+                         vehicle=VehicleSchedule([VehicleSegment(1.0), VehicleSegment(1.5),
+                                                  VehicleSegment(1.0, (0.7, 1.0, 1.0, 1.0))], segment_steps=340)),
+}
+
+
 @pytest.mark.parametrize("reward_scale", [1.0, 0.01])
-def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
+@pytest.mark.parametrize("conditions", [pytest.param(c, id=k) for k, c in CONDITIONS.items()])
+def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale, conditions):
     """Replay the JAX learner's recorded actions through HoverVecEnv.step (the env SB3 steps) and rebuild every
     buffer entry with SB3's definitions: observations, rewards with the timeout bootstrap, episode starts,
-    values and log-probabilities of the networks, GAE advantages and returns (SB3's RolloutBuffer)."""
+    values and log-probabilities of the networks, GAE advantages and returns (SB3's RolloutBuffer). Under changes
+    of condition inside the rollout, both see the same wind and vehicle at the same global step."""
     n, steps = 4, 300
 
     def make_env():
-        return HoverVecEnv(n_envs=n, seed=3, wind=WindSchedule([3.0, 1.0], segment_steps=500), episode_seconds=0.8,
+        return HoverVecEnv(n_envs=n, seed=3, **conditions, episode_seconds=0.8,
                            world_bound=2.5, reward=HoverReward(crash_reward=-500.0), reward_scale=reward_scale)
     env = make_env()
     model = JaxPPO(env, n_steps=steps, batch_size=60, seed=3)
@@ -173,6 +187,8 @@ def test_compiled_rollout_is_the_env_stepped_by_sb3s_loop(reward_scale):
         starts = dones
     assert truncations > 0 and crashes > 0
     assert replay.global_step == env.global_step
+    assert replay.condition() == env.condition()
+    np.testing.assert_array_equal(replay.sim.x, env.sim.x)  # the same physics at every step, to the bit
     logged = [(e["r"], e["l"]) for e in model.ep_info_buffer]  # SB3's episode buffer: returns in task units
     assert len(logged) == len(episodes) and np.allclose(logged, episodes, rtol=1e-6)
 

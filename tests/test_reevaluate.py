@@ -82,7 +82,7 @@ def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsy
     run_id = run(compose_cfg(["agent=ppo", "seed=0", "wind=paper", *TINY]), tmp_path / "a")
     capsys.readouterr()
     cases = [
-        (["agent.ppo.learning_rate=1"], "only eval.KEY=VALUE overrides, KEY one of wind_speed, direction"),
+        (["agent.ppo.learning_rate=1"], "only eval.KEY=VALUE overrides, KEY one of condition, wind_speed, direction"),
         (["eval.policy=final"], "only eval.KEY=VALUE overrides"),
         (["eval.episodes=0"], "eval.episodes"),
         (["--where", "seed=9"], "no FINISHED run of 'recom-hover' matches seed=9"),

@@ -1297,3 +1297,76 @@ def test_tables_say_when_runs_come_from_different_cpus_or_float_modes(tmp_path):
     plain = log_late_evaluations(tmp_path / "plain", LATE)
     code, stdout, _ = run_report(plain, tmp_path / "out2", "--experiment", "lb")
     assert code == 0 and "CPU model" not in (tmp_path / "out2" / "summary.md").read_text() + stdout
+
+
+SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segments of 400 steps (both seeds alike)
+    "reset_all": [[0.0, 0.5, 1.0, 1.0]] * 3,
+    "ppo": [[0.0, 0.5, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.5]],
+}
+
+
+def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
+    """Segments of 400 steps, four evaluations each. reset_all learns every segment alike: AUC 62.5%, end 100%. PPO
+    matches it on segment 0 (Δ 0), transfers forward on segment 1 (AUC 100%, Δ +37.5 points) and fails on segment 2
+    (AUC 12.5%, end 50%: Δ −50 points). Both seeds alike, so every interval has zero width."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("seg")
+    for agent, segs in SEGMENT_EVALS.items():
+        for seed in (0, 1):
+            run_id = client.create_run(exp_id, start_time=1_000_000, tags={
+                "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
+            evals = [v for seg in segs for v in seg]
+            metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
+            metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
+            client.log_batch(run_id, metrics=metrics, params=[
+                Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
+                Param("eval.condition", "current")])
+            client.set_terminated(run_id, end_time=1_060_000)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "segment_scores.csv").set_index(["agent", "segment"])
+    assert got.loc[("reset_all", 0), "auc_mean"] == 0.625 and got.loc[("reset_all", 2), "end_mean"] == 1.0
+    assert np.isnan(got.loc[("reset_all", 1), "auc_vs_reset_all"])   # the reference against itself: none
+    ppo = got.loc["ppo"]
+    assert list(ppo["auc_mean"]) == [0.625, 1.0, 0.125] and list(ppo["end_mean"]) == [1.0, 1.0, 0.5]
+    assert list(ppo["auc_vs_reset_all"]) == [0.0, 0.375, -0.5] and list(ppo["end_vs_reset_all"]) == [0.0, 0.0, -0.5]
+    assert list(ppo["auc_vs_reset_all_low"]) == list(ppo["auc_vs_reset_all_high"]) == [0.0, 0.375, -0.5]
+    assert list(ppo["evals_per_run"]) == [4.0] * 3 and list(ppo["auc_ci95"]) == [0.0] * 3
+    shown = md_table(tmp_path / "out" / "segment_scores.md").set_index("Agent")
+    assert shown.loc["PPO", "2 (800–1.2k)"] == "12 ± 0 (Δ -50 [-50, -50])"
+    assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
+    assert (tmp_path / "out" / "segment_scores_flip.png").exists()
+
+
+def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):
+    """x3 (wind +x) runs flown under x3: success 100% and 80%; under mx3 (wind -x): 20% and 0% (gap 80 pp, both seeds
+    alike: zero width); mx3 runs under mx3: 90%, 90%. Position MSE summed over the axes. A missing arm is one line."""
+    from sweep.report import transfer
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("transfer")
+    flown = {("x3", 0): {"x3": 1.0, "mx3": 0.2}, ("x3", 1): {"x3": 0.8, "mx3": 0.0},
+             ("mx3", 0): {"mx3": 0.9}, ("mx3", 1): {"mx3": 0.9}}
+    for (arm, seed), under in flown.items():
+        run_id = client.create_run(exp_id, start_time=1_000_000, tags={"agent": "ppo", "wind": arm, "seed": str(seed),
+                                                                        "vehicle": "nominal"}).info.run_id
+        logged = []
+        for target, success in under.items():
+            for field, value in (("success_rate", success), ("mse_x", 0.1), ("mse_y", 0.2), ("mse_z", 1 - success)):
+                logged.append(Metric(f"{transfer.reeval_name(target)}/eval_best_eval/{field}", value, 0, 100))
+        client.log_batch(run_id, metrics=logged)
+        client.set_terminated(run_id)
+    assert transfer.main(["--experiment", "transfer", "--uri", uri, "--out", str(tmp_path / "out"),
+                          "--change", "flip=x3:mx3"]) == 0
+    got = pd.read_csv(tmp_path / "out" / "transfer_gap.csv").iloc[0]
+    assert (got["A_on_A_success"], got["A_on_B_success"], got["B_on_B_success"]) == pytest.approx((0.9, 0.1, 0.9))
+    assert got["gap_success"] == pytest.approx(0.8) and got["gap_success_ci95"] == pytest.approx(0.0, abs=1e-12)
+    assert got["A_on_A_mse"] == pytest.approx(0.3 + 0.1) and got["gap_mse"] == pytest.approx(-0.8)
+    shown = md_table(tmp_path / "out" / "transfer_gap.md").iloc[0]
+    assert shown["A on B: success (%)"].startswith("10 ± ") and shown["Gap A on A − A on B: success (pp)"] == "80 ± 0"
+    capsys.readouterr()
+    assert transfer.main(["--experiment", "transfer", "--uri", uri, "--change", "payload=none:none+mass1p5"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no FINISHED run under none, none+mass1p5" in err and "mx3, x3" in err

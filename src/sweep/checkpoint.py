@@ -62,7 +62,8 @@ class JobRecord:
         update_json(self.path, **fields)
 
 
-FORMAT = 2   # 2: hooks by name and the loop's pending metrics (issue 31); format-1 checkpoints do not resume
+FORMAT = 3   # 2: hooks by name and the loop's pending metrics (issue 31); 3: the condition's wind vector and vehicle
+            # (issue 33). Older checkpoints do not resume
 
 
 def snapshot(training: Training) -> dict[str, Any]:

@@ -42,6 +42,7 @@ RecomPrevious = choice("RecomPrevious", "last_update", "shifted")
 RecomGradient = choice("RecomGradient", "absolute", "relative")
 RecomReward = choice("RecomReward", "return", "per_step")
 EvalPolicy = choice("EvalPolicy", "final", "best", "both")
+EvalCondition = choice("EvalCondition", "fixed", "current", "all")
 
 
 # ---- ranges ----------------------------------------------------------------------------------------------------
@@ -170,8 +171,11 @@ class Eval:
     policy: EvalPolicy = MISSING
     episodes: int = key(lambda v: v >= 1, "an integer >= 1")
     every_timesteps: int = at_least(0, unit=" (0: only at the end)")
+    condition: EvalCondition = MISSING
     wind_speed: float = non_negative(" (m/s)")
     direction: List[float] = vector3()
+    mass: float = key(lambda v: _finite(v) and v > 0, "a number > 0 (factor on RotorPy's mass and inertia)")
+    rotor_efficiency: List[float] = key(lambda v: _efficiencies_ok(v), "4 numbers in (0, 1] (each rotor's share of its thrust)")
     seed: int = at_least(0)
     success_radius: float = positive(" (m)")
     success_hold_s: float = non_negative(" (s)")
@@ -185,6 +189,14 @@ class Tracking:
     flush_every_s: float = non_negative(" (s; 0 writes every logger dump at once)")
 
 
+def _vector3_ok(v: Any) -> bool:
+    return isinstance(v, list) and len(v) == 3 and all(_finite(s) for s in v) and any(s != 0 for s in v)
+
+
+def _efficiencies_ok(v: Any) -> bool:
+    return len(v) == 4 and all(_finite(e) and 0 < e <= 1 for e in v)
+
+
 @dataclass
 class Wind:
     name: str = MISSING
@@ -193,6 +205,22 @@ class Wind:
     segment_steps: int = positive_int()
     after_list: AfterList = MISSING
     direction: List[float] = vector3()
+    directions: Optional[List[List[float]]] = key(lambda v: v is None or (len(v) > 0 and all(map(_vector3_ok, v))),
+                                                  "null or a list of non-zero 3-vectors [x, y, z], one per speed")
+
+
+@dataclass
+class VehicleSegment:
+    mass: float = key(lambda v: _finite(v) and v > 0, "a number > 0 (factor on RotorPy's mass and inertia)")
+    rotor_efficiency: List[float] = key(_efficiencies_ok, "4 numbers in (0, 1] (each rotor's share of its thrust)")
+
+
+@dataclass
+class Vehicle:
+    name: str = MISSING
+    segments: List[VehicleSegment] = non_empty("a non-empty list of {mass, rotor_efficiency} segments")
+    segment_steps: int = positive_int()
+    after_list: AfterList = MISSING
 
 
 @dataclass
@@ -297,6 +325,7 @@ class Agent:
 class SweepConfig:
     agent: Agent = field(default_factory=Agent)
     wind: Wind = field(default_factory=Wind)
+    vehicle: Vehicle = field(default_factory=Vehicle)
     seed: int = at_least(0)
     resume: Any = key(lambda v: isinstance(v, (str, int)) and not isinstance(v, bool),   # run.job_record resolves it
                       "auto, never, a job output dir or an MLflow run id")
@@ -399,7 +428,12 @@ def _check(value: Any, typ: Any, key: str, meta: Any = None) -> None:
         return
     if origin is list:
         item_type = typing.get_args(typ)[0]
-        if not isinstance(value, list) or not all(_scalar_ok(v, item_type) for v in value):
+        if not isinstance(value, list):
+            raise _fail(key, value, allowed)
+        if is_dataclass(item_type) or typing.get_origin(item_type) is list:
+            for i, item in enumerate(value):
+                _check(item, item_type, f"{key}[{i}]")
+        elif not all(_scalar_ok(v, item_type) for v in value):
             raise _fail(key, value, allowed)
     elif not _scalar_ok(value, typ):
         raise _fail(key, value, allowed)
@@ -439,6 +473,9 @@ def validate_section(cfg: DictConfig, name: str) -> None:
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent
+    if c.wind.directions is not None and len(c.wind.directions) != len(c.wind.speeds):
+        raise ConfigError(f"wind.directions: {len(c.wind.directions)} directions for {len(c.wind.speeds)} speeds: must "
+                          "be one per speed (or null: wind.direction for every speed)")
     if c.env.backend not in c.env.backends:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:

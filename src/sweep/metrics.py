@@ -140,3 +140,14 @@ for _curve in CURVES:
 CURVE_KEYS = [c.key for c in CURVES if c.always]
 OPTIONAL_KEYS = [c.key for c in CURVES if not c.always]
 FINALS = {c.final: c.key for c in CURVES if c.final}   # per-run column -> the curve whose final value it holds
+
+
+# ---- run tags the report and the re-evaluation split runs by ------------------------------------------------------
+TAG_DEFAULTS = {"vehicle": "nominal"}  # runs logged before the tag existed flew RotorPy's vehicle
+
+
+def condition_arm(tags: dict[str, str]) -> str:
+    """The conditions a run trained under, as one name: its wind, ``+<vehicle>`` where the vehicle is not nominal
+    (``paper``, ``none+payload``): what the report's panels and the re-evaluation's rows are split by."""
+    vehicle = tags.get("vehicle", TAG_DEFAULTS["vehicle"])
+    return tags.get("wind", "?") + ("" if vehicle == "nominal" else f"+{vehicle}")

@@ -70,7 +70,8 @@ class NonFiniteGuard(Hook):
 
 
 class EnvMonitor(Hook):
-    """Logs the condition in force at each rollout end (``env/wind_speed``)."""
+    """Logs the condition in force at each rollout end (``Condition.metrics``: ``env/segment``, ``env/wind_speed``,
+    ``env/wind_x|y|z``, ``env/mass_factor``, ``env/rotor_efficiency_1..4``)."""
 
     def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
-        return {"env/wind_speed": rollout.condition.wind_speed}
+        return rollout.condition.metrics()

@@ -40,7 +40,7 @@ from stable_baselines3 import PPO
 
 from sweep import metrics
 from sweep.config import ConfigError, validate_section
-from sweep.evaluate import evaluate
+from sweep.evaluate import evaluate, flight_conditions
 from sweep.report import stats
 from sweep.report.load import agent_label
 from sweep.report.tables import interval, markdown, plus_minus
@@ -49,7 +49,8 @@ from sweep.tracking import add_to_finished_run, download_artifacts, finished_run
 CONFIG = "config.yaml"
 MODELS = {policy: "model.zip" if policy == "final" else f"model_{policy}.zip" for policy in metrics.POLICIES}
 # The eval keys a flight depends on; eval.policy and eval.every_timesteps say what training kept and when it flew.
-FLIGHT_KEYS = ("wind_speed", "direction", "episodes", "seed", "success_radius", "success_hold_s")
+FLIGHT_KEYS = ("condition", "wind_speed", "direction", "mass", "rotor_efficiency", "episodes", "seed", "success_radius",
+               "success_hold_s")
 
 
 @dataclass
@@ -63,6 +64,10 @@ class StoredRun:
     label: str
     cfg: DictConfig
     models: dict[str, Path]  # policy (metrics.POLICIES key) -> model file
+
+
+# eval keys added with eval.condition (issue 33): what a run stored before them flew under
+EVAL_BEFORE_CONDITIONS = {"condition": "fixed", "mass": 1.0, "rotor_efficiency": [1.0, 1.0, 1.0, 1.0]}
 
 
 def parse_overrides(items: list[str]) -> DictConfig:
@@ -79,7 +84,7 @@ def parse_overrides(items: list[str]) -> DictConfig:
 def run_config(stored: Path, overrides: DictConfig) -> DictConfig:
     """The run's own config with the ``eval.*`` overrides, its ``eval`` block checked like a new run's (ConfigError;
     the rest is the run's as it trained, which may predate keys added since)."""
-    cfg = OmegaConf.merge(OmegaConf.load(stored), overrides)
+    cfg = OmegaConf.merge({"eval": EVAL_BEFORE_CONDITIONS}, OmegaConf.load(stored), overrides)
     validate_section(cfg, "eval")
     return cfg
 
@@ -97,7 +102,7 @@ def prepare(uri: str, runs: list[tuple[str, dict[str, str], dict[str, str]]], ov
         if CONFIG not in files or not models:
             skipped.append(name)
             continue
-        run = StoredRun(run_id, name, agent, tags.get("wind", "?"), int(tags.get("seed", -1)),
+        run = StoredRun(run_id, name, agent, metrics.condition_arm(tags), int(tags.get("seed", -1)),
                         agent_label(agent, tags, params), run_config(files[CONFIG], overrides), models)
         stored.setdefault((run.agent, run.wind, run.seed), []).append(run)  # runs come oldest first
     older = [r.name for same in stored.values() for r in same[:-1]]
@@ -107,7 +112,9 @@ def prepare(uri: str, runs: list[tuple[str, dict[str, str], dict[str, str]]], ov
 def fly_and_log(uri: str, run: StoredRun, name: str, overrides: list[str]) -> dict[str, dict[str, float]]:
     """Fly the run's stored policies under its (overridden) protocol; {policy: scores}, logged to the run under
     ``<name>/`` at the step of its final evaluation, with the overrides as the tag ``reeval.<name>``."""
-    scores = {policy: evaluate(PPO.load(path, device="cpu"), run.cfg.eval, run.cfg.env)[0]
+    total = int(run.cfg.train.total_timesteps)
+    conditions = flight_conditions(run.cfg.eval, run.cfg.get("wind"), run.cfg.get("vehicle"), total, total)
+    scores = {policy: evaluate(PPO.load(path, device="cpu"), run.cfg.eval, run.cfg.env, conditions)[0]
               for policy, path in run.models.items()}
     logged = {f"{name}/{metrics.eval_key(policy, key)}": value
               for policy, values in scores.items() for key, value in values.items()}

@@ -26,8 +26,8 @@ from sweep.agents import build_learner
 from sweep import metrics, portable
 from sweep.checkpoint import JobRecord, job_key, load_checkpoint
 from sweep.config import ConfigError, settings, validate
-from sweep.envs.factory import make_env, wind_schedule
-from sweep.evaluate import evaluate
+from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
+from sweep.evaluate import evaluate, flight_conditions
 from sweep.status import read_status, write_status
 from sweep.training.hooks import Hooks, build_hooks
 from sweep.training.loop import Training, train
@@ -38,7 +38,8 @@ log = logging.getLogger("sweep")
 
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
-    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.label, "wind": cfg.wind.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
+    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.label, "wind": cfg.wind.name,
+            "vehicle": cfg.vehicle.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
             "learner": cfg.agent.learner, "sweep": "single", "job": "0", "portable": str(bool(cfg.train.portable)).lower(),
             "cpu_model": portable.cpu_model(), "cpu_flags": portable.cpu_flags_hash()}
     if HydraConfig.initialized():
@@ -46,7 +47,8 @@ def job_tags(cfg: DictConfig) -> dict[str, str]:
         if hc.mode == RunMode.MULTIRUN:
             tags["sweep"], tags["job"] = str(Path(hc.sweep.dir).resolve()), str(hc.job.num)
         tags["overrides"] = " ".join(hc.overrides.task)
-    tags["run_name"] = f"{tags['agent']}-{tags['wind']}-s{tags['seed']}"
+    vehicle = "" if cfg.vehicle.name == "nominal" else f"-{cfg.vehicle.name}"
+    tags["run_name"] = f"{tags['agent']}-{tags['wind']}{vehicle}-s{tags['seed']}"
     return tags
 
 
@@ -91,7 +93,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
         return previous["run_id"]
     state = load_checkpoint(record.checkpoint) if previous else None
 
-    env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True)
+    env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), cfg.seed, learning=True,
+                   vehicle=vehicle_schedule(cfg.vehicle))
     model = build_learner(cfg.agent, env, cfg.seed, cfg.train.total_timesteps)
     run_id = previous.get("run_id") if previous else None
     params = {**flatten(settings(cfg)), "hooks": ",".join(h.name for h in hooks)}   # the hooks that ran, in order
@@ -162,7 +165,8 @@ def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Pat
     """The evaluation protocol on the learner's current policy, scored as ``policy`` (a ``metrics.POLICIES``
     key): metrics under its prefix at the final step, the flights as ``eval<suffix>_trajectories.npz`` and the
     model as ``model<suffix>.zip`` (run artifacts; suffix "" for the final policy, else "_best", "_best_eval")."""
-    values, flights = evaluate(model, cfg.eval, cfg.env)
+    conditions = flight_conditions(cfg.eval, cfg.wind, cfg.vehicle, model.num_timesteps, cfg.train.total_timesteps)
+    values, flights = evaluate(model, cfg.eval, cfg.env, conditions)
     scores = {metrics.eval_key(policy, k): float(v) for k, v in {**values, **(extra or {})}.items()}
     suffix = "" if policy == "final" else f"_{policy}"
     tracked.log_metrics(scores, model.num_timesteps)

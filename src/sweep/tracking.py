@@ -39,6 +39,7 @@ os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
 import mlflow  # noqa: E402
 from mlflow.entities import Metric, Param, RunTag  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
+from sweep.metrics import TAG_DEFAULTS  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -219,9 +220,7 @@ class RunRecord:
 ARCHIVED_FROM = "archived_from"  # tag of an imported run: the run id it was exported from
 
 
-WHERE_TAGS = ("agent", "wind", "seed")  # what a ``where`` key names in a run's tags; any other key, a param
-
-
+WHERE_TAGS = ("agent", "wind", "vehicle", "seed")  # what a ``where`` key names in a run's tags; any other key, a param
 def parse_where(items: list[str]) -> dict[str, str]:
     """``["wind=none", "env.n_envs=16"]`` -> {key: value}; ValueError naming a malformed or repeated item. A value
     matches the logged string exactly (``agent.ppo.learning_rate=0.0003``, not ``3e-4``)."""
@@ -238,7 +237,8 @@ def parse_where(items: list[str]) -> dict[str, str]:
 
 def run_matches(params: dict[str, str], tags: dict[str, str], where: dict[str, str]) -> bool:
     """Whether a run has every ``where`` value: tag ``agent``/``wind``/``seed``, else the flattened config param."""
-    return all((tags if key in WHERE_TAGS else params).get(key) == value for key, value in where.items())
+    return all((tags.get(key, TAG_DEFAULTS.get(key)) if key in WHERE_TAGS else params.get(key)) == value
+               for key, value in where.items())
 
 
 def read_finished_runs(uri: str, experiment: str, skip: set[str] = frozenset(),

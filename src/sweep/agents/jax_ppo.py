@@ -276,13 +276,15 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         wind = env.wind.velocities(env.global_step + n * np.arange(n_rollout_steps))
         buffer = rollout.Buffer(observations=buf.observations, actions=buf.actions, rewards=buf.rewards,
                                 episode_starts=buf.episode_starts, values=buf.values, log_probs=buf.log_probs)
-        kernel = env.kernel
         t = 0
         while t < n_rollout_steps:  # the weights are read at every call (a written weight acts at once)
+            env.sync_condition()  # the vehicle in force (the wind of every step is in ``wind``)
+            to_change = env.steps_to_vehicle_change()
+            t_stop = n_rollout_steps if to_change is None else min(n_rollout_steps, t + to_change)
             policy = rollout.Policy(pi=rollout.Mlp(*self._pi), vf=rollout.Mlp(*self._vf), log_std=self._log_std,
                                     relu=self._relu, layer_norm=self.layer_norm)
-            t_next = rollout.fly(t, n_rollout_steps, obs, episode_starts, dones, noise, wind, policy, self.gamma, buffer,
-                                 kernel)
+            t_next = rollout.fly(t, t_stop, obs, episode_starts, dones, noise, wind, policy, self.gamma, buffer,
+                                 env.kernel)
             env.global_step += n * (t_next - t)
             self.num_timesteps += n * (t_next - t)
             t = t_next

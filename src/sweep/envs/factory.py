@@ -1,4 +1,5 @@
-"""The hover env of an ``env`` config (conf/config.yaml ``env:``), for training and for evaluation."""
+"""The hover env of an ``env`` config (conf/config.yaml ``env:``), for training and for evaluation, and the
+schedules of the ``wind`` and ``vehicle`` configs (conf/wind/, conf/vehicle/)."""
 from __future__ import annotations
 
 from hydra.utils import instantiate
@@ -6,15 +7,18 @@ from omegaconf import DictConfig
 
 from sweep.envs.hover import HoverVecEnv
 from sweep.envs.reward import HoverReward
+from sweep.envs.vehicle import VehicleSchedule, VehicleSegment
 from sweep.envs.wind import WindSchedule
 
 
-def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False) -> HoverVecEnv:
+def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, learning: bool = False,
+             vehicle: VehicleSchedule | None = None) -> HoverVecEnv:
     """The hover env of ``env_cfg`` with ``n_envs`` vehicles on the backend ``env.backend`` names among
-    ``env.backends``; the reward it returns is scaled by ``env.reward_scale`` only for a learner
-    (``learning=True``): evaluations see the task's reward."""
+    ``env.backends``, under ``wind`` and ``vehicle`` (None: nominal); the reward it returns is scaled by
+    ``env.reward_scale`` only for a learner (``learning=True``): evaluations see the task's reward."""
     return HoverVecEnv(
-        n_envs=n_envs, backend=instantiate(env_cfg.backends[env_cfg.backend]), wind=wind, reward=HoverReward(**env_cfg.reward),
+        n_envs=n_envs, backend=instantiate(env_cfg.backends[env_cfg.backend]), wind=wind, vehicle=vehicle,
+        reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
         observation=env_cfg.observation, time_limit=env_cfg.time_limit,
@@ -24,5 +28,19 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
 
 def wind_schedule(wind_cfg: DictConfig) -> WindSchedule:
     """The training wind of a ``wind`` config (conf/wind/*.yaml)."""
+    directions = wind_cfg.get("directions")
     return WindSchedule(speeds=list(wind_cfg.speeds), segment_steps=wind_cfg.segment_steps,
-                        after_list=wind_cfg.after_list, direction=list(wind_cfg.direction), name=wind_cfg.name)
+                        after_list=wind_cfg.after_list, direction=list(wind_cfg.direction), name=wind_cfg.name,
+                        directions=None if directions is None else [list(d) for d in directions])
+
+
+def vehicle_segment(segment_cfg) -> VehicleSegment:
+    """One ``vehicle.segments`` entry (or an ``eval`` block with ``mass`` and ``rotor_efficiency``)."""
+    return VehicleSegment(mass=float(segment_cfg.mass), rotor_efficiency=tuple(float(e) for e in segment_cfg.rotor_efficiency))
+
+
+def vehicle_schedule(vehicle_cfg: DictConfig) -> VehicleSchedule:
+    """The training vehicle of a ``vehicle`` config (conf/vehicle/*.yaml)."""
+    return VehicleSchedule(segments=[vehicle_segment(s) for s in vehicle_cfg.segments],
+                           segment_steps=vehicle_cfg.segment_steps, after_list=vehicle_cfg.after_list,
+                           name=vehicle_cfg.name)

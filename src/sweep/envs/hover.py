@@ -16,7 +16,10 @@
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
   own terminal observation, so SB3 bootstraps each env from its own last state; ``"terminate"`` ends
   it as a termination (no bootstrap), as RotorPy's gym env before 3.0 did.
-* Wind: world-frame air velocity from ``WindSchedule`` at the global timestep (steps x N); not observed.
+* Conditions: the wind (world-frame air velocity, ``WindSchedule``) and the vehicle (mass factor, rotor
+  efficiencies, ``VehicleSchedule``) in force at the global timestep (steps x N); neither is observed.
+  ``sync_condition`` brings the wind array and the backend's vehicle to the current step's segments; a change
+  of either schedule's segment rebuilds them (the wind's direction, not only its speed).
 """
 from __future__ import annotations
 
@@ -32,7 +35,8 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from sweep.envs.backends.base import Backend, Vehicles
 from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
-from sweep.envs.vehicle import crazyflie_params, hover_rotor_speed
+from sweep.envs.schedule import next_boundary
+from sweep.envs.vehicle import NOMINAL, VehicleSchedule, crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
 from sweep.training.records import Condition
 
@@ -126,12 +130,33 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome):
                 obs[i, 10 + a] = w[i, a] * w_scale
 
 
+def segment_count(wind: WindSchedule, vehicle: VehicleSchedule, global_step: int) -> int:
+    """Segments passed on the run's clock: the wind's segment periods, plus the vehicle's boundaries that are not
+    also the wind's when the vehicle changes (with the same ``segment_steps``, both are ``global_step //
+    segment_steps``). With a constant wind it still counts the wind's periods, as every run before the vehicle
+    schedule did (the probe and the resets act at each)."""
+    g, w = int(global_step), int(wind.segment_steps)
+    if not vehicle.varies or vehicle.segment_steps == w:
+        return g // w
+    v = int(vehicle.segment_steps)
+    return g // w + g // v - g // math.lcm(w, v)
+
+
+def condition_at(wind: WindSchedule, vehicle: VehicleSchedule, global_step: int) -> Condition:
+    """The ``Condition`` in force at ``global_step`` under the two schedules."""
+    segment = vehicle.at(global_step)
+    return Condition(segment=segment_count(wind, vehicle, global_step),
+                     wind=tuple(float(c) for c in wind.velocity_at(global_step)),
+                     mass=segment.mass, rotor_efficiency=tuple(segment.rotor_efficiency))
+
+
 class HoverVecEnv(VecEnv):
     def __init__(
         self,
         n_envs: int = 1,
         backend: Callable[..., Backend] = FastBackend,
         wind: WindSchedule | None = None,
+        vehicle: VehicleSchedule | None = None,
         reward: HoverReward | None = None,
         sim_rate: float = 100.0,
         episode_seconds: float = 5.0,
@@ -155,6 +180,7 @@ class HoverVecEnv(VecEnv):
         self.world_bound = float(world_bound)
         self.observation = observation
         self.wind = wind or WindSchedule()
+        self.vehicle = vehicle or VehicleSchedule()
         self.reward_fn = reward or HoverReward()
         self.sim = backend(n=n_envs, params=self.params, dt=self.dt)
         self.hover_speed = hover_rotor_speed(self.params)
@@ -173,7 +199,7 @@ class HoverVecEnv(VecEnv):
         self.ep_start_time = np.full(n_envs, time.time())
         self._actions = np.zeros((n_envs, 4), dtype=np.float32)
         self._rng = np.random.default_rng(seed)
-        self._wind_speed: float | None = None
+        self._segments: tuple[int, int] | None = None  # (wind, vehicle) segment indices the arrays were built for
         self._wind_array = np.zeros((n_envs, 3))
         # outputs of task_outcome, reused every step
         self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
@@ -199,13 +225,26 @@ class HoverVecEnv(VecEnv):
                            ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome)
 
     # ---- task pieces -------------------------------------------------------------------------
-    def _wind_now(self) -> np.ndarray:
-        """(N, 3) wind of the current global step, rebuilt only when the speed changes."""
-        speed = self.wind.speed_at(self.global_step)
-        if speed != self._wind_speed:
-            self._wind_speed = speed
-            self._wind_array = np.ascontiguousarray(np.tile(self.wind.velocity_at(self.global_step), (self.num_envs, 1)))
-        return self._wind_array
+    def sync_condition(self) -> None:
+        """Bring the (N, 3) wind array and the backend's vehicle to the segments in force at the current global
+        step; rebuilt when either schedule's segment index changes (a new direction at the same speed too)."""
+        g = self.global_step
+        segments = (self.wind.index(g), self.vehicle.index(g))
+        if segments == self._segments:
+            return
+        if self._segments is None or segments[1] != self._segments[1]:
+            vehicle = self.vehicle.at(g)
+            if self._segments is not None or not vehicle.nominal:  # the backend starts nominal
+                self.sim.set_vehicle(vehicle)
+        self._segments = segments
+        self._wind_array = np.ascontiguousarray(np.tile(self.wind.velocity_at(g), (self.num_envs, 1)))
+
+    def steps_to_vehicle_change(self) -> int | None:
+        """Vector steps from now until the vehicle schedule's next segment boundary (None: the vehicle never
+        changes): a compiled loop that steps the backend itself must stop there and ``sync_condition``."""
+        if not self.vehicle.varies:
+            return None
+        return -(-(next_boundary(self.global_step, self.vehicle.segment_steps) - self.global_step) // self.num_envs)
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         k = len(idx)
@@ -233,9 +272,8 @@ class HoverVecEnv(VecEnv):
                               axis=1).astype(np.float32)
 
     def condition(self) -> Condition:
-        """The condition in force at the current global step: the schedule's segment and its wind speed."""
-        return Condition(segment=int(self.global_step // self.wind.segment_steps),
-                         wind_speed=float(self.wind.speed_at(self.global_step)))
+        """The condition in force at the current global step (``Condition``: its segment, wind and vehicle)."""
+        return condition_at(self.wind, self.vehicle, self.global_step)
 
     # ---- checkpoints ----------------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
@@ -249,6 +287,9 @@ class HoverVecEnv(VecEnv):
         self.t_idx[...] = state["t_idx"]
         self.ep_return[...] = state["ep_return"]
         self._rng.bit_generator.state = state["rng"]
+        self._segments = None
+        self.sim.set_vehicle(NOMINAL)
+        self.sync_condition()
 
     # ---- VecEnv API ---------------------------------------------------------------------------
     def reset(self) -> np.ndarray:
@@ -261,7 +302,8 @@ class HoverVecEnv(VecEnv):
     def step_wait(self):
         actions = np.clip(self._actions, -1.0, 1.0)
         cmd = action_to_rotor_speed.py_func(actions.astype(np.float64), self.speed_min, self.speed_max)
-        self.sim.step(cmd, self._wind_now())
+        self.sync_condition()
+        self.sim.step(cmd, self._wind_array)
         self.global_step += self.num_envs
         task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome)
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()

@@ -1,16 +1,29 @@
-"""Crazyflie parameters, read from RotorPy (``rotorpy.vehicles.crazyflie_params``), not retyped.
+"""Crazyflie parameters, read from RotorPy (``rotorpy.vehicles.crazyflie_params``), not retyped, and the vehicle
+schedule (``conf/vehicle/``): what changes about the vehicle segment by segment.
 
 Only the motor time constant is overridden: RotorPy 3.0.0 ships tau_m = 0.072 s, the paper's
 Table II uses 0.05 s (config ``env.motor_time_constant``).
+
+A ``VehicleSegment`` scales the vehicle for its segment:
+
+* ``mass``: a payload as a factor on RotorPy's mass *and* inertia (a payload at the centre of mass, spread as the
+  airframe is, a choice: README "Conditions"); thrust-to-weight 1.95 nominal, 1.50 at 1.3, 1.30 at 1.5;
+* ``rotor_efficiency``: per rotor, the share of RotorPy's thrust it makes, ``k_eta * eta_i * w_i^2`` (a
+  degraded motor or a chipped propeller; rotor drag, yaw moment and translational lift are RotorPy's unchanged).
 """
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 from rotorpy.vehicles.crazyflie_params import quad_params as _CRAZYFLIE
 
+from sweep.envs.schedule import segment_index
+
 GRAVITY = 9.81  # m/s^2, RotorPy's Multirotor.g
+INERTIA_KEYS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
 
 def crazyflie_params(motor_time_constant: float | None = 0.05) -> dict:
@@ -23,3 +36,54 @@ def crazyflie_params(motor_time_constant: float | None = 0.05) -> dict:
 def hover_rotor_speed(params: dict) -> float:
     """Rotor speed (rad/s) whose total thrust equals the weight: m g = 4 k_eta w^2."""
     return float(np.sqrt(params["mass"] * GRAVITY / (params["num_rotors"] * params["k_eta"])))
+
+
+@dataclass(frozen=True)
+class VehicleSegment:
+    """The vehicle of one segment: a mass (and inertia) factor and each rotor's thrust efficiency."""
+    mass: float = 1.0
+    rotor_efficiency: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+
+    @property
+    def nominal(self) -> bool:
+        return self.mass == 1.0 and all(e == 1.0 for e in self.rotor_efficiency)
+
+
+NOMINAL = VehicleSegment()
+
+
+def scaled_params(params: dict, segment: VehicleSegment) -> dict:
+    """RotorPy params with the segment's mass factor applied to the mass and every inertia entry (the rotor
+    efficiency is not a RotorPy parameter: the backends apply it to the thrust)."""
+    out = copy.deepcopy(params)
+    out["mass"] = params["mass"] * segment.mass
+    for k in INERTIA_KEYS:
+        out[k] = params[k] * segment.mass
+    return out
+
+
+@dataclass
+class VehicleSchedule:
+    segments: Sequence[VehicleSegment] = (NOMINAL,)
+    segment_steps: int = 2_000_000
+    after_list: str = "repeat"     # repeat | hold
+    name: str = "nominal"
+    _distinct: int = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.segments = [s if isinstance(s, VehicleSegment) else
+                         VehicleSegment(float(s["mass"]), tuple(float(e) for e in s["rotor_efficiency"]))
+                         for s in self.segments]
+        self._distinct = len(set(self.segments))
+
+    @property
+    def varies(self) -> bool:
+        """More than one distinct vehicle in the list."""
+        return self._distinct > 1
+
+    def index(self, global_step):
+        return segment_index(global_step, self.segment_steps, len(self.segments), self.after_list)
+
+    def at(self, global_step: int) -> VehicleSegment:
+        """The vehicle in force at ``global_step``."""
+        return self.segments[self.index(global_step)]

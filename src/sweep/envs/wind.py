@@ -1,12 +1,12 @@
-"""Wind schedule of the paper (Sec. IV-A): the wind speed changes every ``segment_steps`` timesteps.
+"""Wind schedule (paper Sec. IV-A): the wind changes every ``segment_steps`` timesteps.
 
 The paper lists 3.0, 2.0, 2.5, 1.5, 2.5 m/s, each held for 2M timesteps, over 20M timesteps. Five
 segments cover only 10M steps, so we read the list as repeating (20M steps see it twice; ``after_list=repeat``).
 The other reading (``after_list=hold``) holds the last speed once the list is used up; the paper's PPO crash is
-reported "after 10 million timesteps", where the two readings part. The speed
-is indexed by the **global** timestep of the run (vector-env steps x n_envs), so it does not depend on
-how many parallel environments collect the data. Wind is a world-frame air velocity along the unit
-vector ``direction``; it acts on the vehicle only through RotorPy's aerodynamic drag.
+reported "after 10 million timesteps", where the two readings part. The wind is indexed by the **global**
+timestep of the run (``sweep.envs.schedule``). Wind is a world-frame air velocity, segment k's speed along
+the unit vector ``direction`` (one for every segment) or ``directions[k]`` (one per segment: ``wind=flip``,
+``wind=rotate``); it acts on the vehicle only through RotorPy's aerodynamic drag.
 """
 from __future__ import annotations
 
@@ -14,6 +14,14 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+
+from sweep.envs.schedule import segment_index
+
+
+def _unit(d: Sequence[float]) -> np.ndarray:
+    d = np.asarray(d, dtype=np.float64)
+    norm = float(np.linalg.norm(d))
+    return d / norm if norm > 0 else np.zeros(3)
 
 
 @dataclass
@@ -23,33 +31,45 @@ class WindSchedule:
     direction: Sequence[float] = (1.0, 0.0, 0.0)
     name: str = "custom"
     after_list: str = "repeat"     # repeat | hold: what follows the last speed of the list
-    _unit: np.ndarray = field(init=False, repr=False)
+    directions: Sequence[Sequence[float]] | None = None  # one per speed (None: ``direction`` for all)
+    _vectors: np.ndarray = field(init=False, repr=False)  # (segments, 3) wind velocity of each segment
 
     def __post_init__(self) -> None:
         self.speeds = [float(s) for s in self.speeds]
-        d = np.asarray(self.direction, dtype=np.float64)
-        norm = float(np.linalg.norm(d))
-        self._unit = d / norm if norm > 0 else np.zeros(3)
+        dirs = [self.direction] * len(self.speeds) if self.directions is None else list(self.directions)
+        if len(dirs) != len(self.speeds):
+            raise ValueError(f"wind: {len(dirs)} directions for {len(self.speeds)} speeds")
+        self._vectors = np.array([s * _unit(d) for s, d in zip(self.speeds, dirs)]).reshape(len(self.speeds), 3)
+
+    @property
+    def varies(self) -> bool:
+        """More than one distinct wind vector in the list."""
+        return len(np.unique(self._vectors, axis=0)) > 1
+
+    def index(self, global_step):
+        """Index of the segment in force at ``global_step`` (an int or an array of them)."""
+        return segment_index(global_step, self.segment_steps, len(self.speeds), self.after_list)
 
     def speed_at(self, global_step: int) -> float:
         """Wind speed (m/s) in force at global timestep ``global_step``."""
-        segment, n = int(global_step) // int(self.segment_steps), len(self.speeds)
-        return self.speeds[segment % n if self.after_list == "repeat" else min(segment, n - 1)]
-
-    def _index(self, global_steps: np.ndarray) -> np.ndarray:
-        segment = np.asarray(global_steps, dtype=np.int64) // int(self.segment_steps)
-        n = len(self.speeds)
-        return segment % n if self.after_list == "repeat" else np.minimum(segment, n - 1)
+        return self.speeds[self.index(global_step)]
 
     def velocity_at(self, global_step: int) -> np.ndarray:
         """World-frame wind velocity (m/s), shape (3,)."""
-        return self.speed_at(global_step) * self._unit
+        return self._vectors[self.index(global_step)].copy()
 
     def velocities(self, global_steps: np.ndarray) -> np.ndarray:
         """``velocity_at`` for many global timesteps at once: (T,) -> (T, 3)."""
-        speeds = np.asarray(self.speeds)[self._index(global_steps)]
-        return speeds[:, None] * self._unit
+        return self._vectors[self.index(np.asarray(global_steps))]
 
     @classmethod
     def constant(cls, speed: float, direction: Sequence[float] = (1.0, 0.0, 0.0)) -> "WindSchedule":
         return cls(speeds=[speed], segment_steps=1 << 62, direction=direction, name=f"constant{speed:g}")
+
+    @classmethod
+    def steady(cls, velocity: Sequence[float]) -> "WindSchedule":
+        """A constant wind of exactly this world-frame velocity (m/s)."""
+        v = np.asarray(velocity, dtype=np.float64).reshape(3)
+        wind = cls.constant(float(np.linalg.norm(v)), v if v.any() else (1.0, 0.0, 0.0))
+        wind._vectors = v.reshape(1, 3).copy()
+        return wind

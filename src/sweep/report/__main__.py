@@ -87,6 +87,11 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             written += figures.curve_figure(runs, histories, wind, stem, conds, shown, out_dir)
     for wind in sorted(runs["wind"].unique()):
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
+    evals = stats.segment_evaluations(histories, runs)
+    if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
+        numbers, _ = tables.segment_scores(runs, evals, conds)
+        for wind in sorted(numbers["wind"].unique()):
+            written += figures.segment_scores(numbers, wind, conds, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
     coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]

@@ -220,6 +220,40 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     return save(fig, out, f"performance_profile_{wind}")
 
 
+def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference: str = "reset_all") -> list[Path]:
+    """Figure segment_scores_<wind> (tables.segment_scores' numbers): per segment of the schedule, each agent's
+    eval-success AUC (top) and its difference to ``reference`` on that segment (bottom, where the reference ran),
+    agents side by side at each segment, 95% CIs as bars."""
+    sub = numbers[numbers["wind"] == wind]
+    if sub.empty:
+        return []
+    key = "condition"
+    shown = [c for c in conds.order if c in set(sub[key])]
+    diff = f"auc_vs_{reference}"
+    has_diff = sub[diff].notna().any()
+    fig, axes = plt.subplots(2 if has_diff else 1, 1, sharex=True, squeeze=False,
+                             figsize=(style.figure_width(1), 3.6 if has_diff else 2.2))
+    width = 0.8 / max(len(shown), 1)
+    for i, cond in enumerate(shown):
+        rows = sub[sub[key] == cond].sort_values("segment")
+        x = rows["segment"].to_numpy() + (i - (len(shown) - 1) / 2) * width
+        look = dict(color=conds.color(cond), marker="o", ms=3, lw=0, elinewidth=0.9, capsize=1.5)
+        axes[0, 0].errorbar(x, 100 * rows["auc_mean"], yerr=100 * rows["auc_ci95"].fillna(0), label=conds.series(cond), **look)
+        if has_diff and rows[diff].notna().any():
+            d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
+            axes[1, 0].errorbar(x, d, yerr=[np.nan_to_num(d - lo), np.nan_to_num(hi - d)], **look)
+    axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
+    axes[0, 0].set_ylim(-3, 103)
+    if has_diff:
+        axes[1, 0].axhline(0.0, color="0.4", lw=0.8, ls=":")
+        axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
+    axes[-1, 0].set_xlabel("Segment of the schedule (each wind.segment_steps)")
+    axes[-1, 0].xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[0, 0].legend(fontsize="x-small", ncol=2, frameon=False, loc="lower left", bbox_to_anchor=(0, 1.02))
+    fig.suptitle(f"Learning per segment, wind {wind}: mean over seeds, bars 95% CI", fontsize="small", y=1.0)
+    return save(fig, out, f"segment_scores_{wind}")
+
+
 def band_alpha(shown: list[str], conds, highlight: Highlight, wind: str, alpha: float) -> float:
     """A band's opacity: ``alpha`` for up to 3 coloured series in a panel, half of it for more (overlapping bands
     would wash into one colour)."""

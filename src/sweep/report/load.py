@@ -31,7 +31,7 @@ NA = "n/a"  # value of a --by param that does not apply to a run (or that the ru
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius",
-              "eval.policy": "eval_policy",  # None in stores logged before it existed (final policy only)
+              "eval.policy": "eval_policy", "eval.condition": "eval_condition",  # None in stores logged before it existed (final policy only)
               # the thresholds of the plasticity readings, for the dormant figure's labels (None where not logged)
               "plasticity.tau": "dormant_tau", "plasticity.saturation": "saturation",
               "plasticity.dead_fraction": "dead_fraction", "plasticity.signed_mean_tau": "signed_mean_tau"}
@@ -146,7 +146,7 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
             continue
         agent = tags.get("agent", "?")
         row = {"run_id": run.info.run_id, "agent": agent, "label": agent_label(agent, tags, params),
-               "wind": tags.get("wind", "?"),
+               "wind": metrics.condition_arm(tags),   # the wind, and the vehicle where it is not RotorPy's (conf/vehicle/)
                "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time,
                "wall_minutes": (run.info.end_time - run.info.start_time) / 60000 if run.info.end_time else np.nan,

@@ -133,6 +133,32 @@ def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame
     return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end", "speed", "reward"])
 
 
+def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
+    """Per run and segment k (the k-th hold of the run's ``wind.segment_steps``): the in-training evaluations logged
+    at steps in (k S, (k+1) S] (the final evaluation counts in the last segment). ``auc``: the area under the
+    eval-success curve within the segment, normalised by its length (the evaluations are evenly spaced, so their
+    mean); ``end``: the success of the segment's last evaluation; ``n_evals``. Segments with no evaluation are
+    left out. Columns run_id, segment, start, end_step, auc, end, n_evals."""
+    rows = []
+    evals = histories[histories["key"] == EVAL_SUCCESS]
+    for run in runs.itertuples():
+        h = evals[evals["run_id"] == run.run_id].sort_values("step")
+        length = run.segment_steps
+        if not len(h) or not np.isfinite(length) or length <= 0:
+            continue
+        steps, values = h["step"].to_numpy(dtype=float), h["value"].to_numpy(dtype=float)
+        total = pd.to_numeric(getattr(run, "total_timesteps", None), errors="coerce")
+        if np.isfinite(total):
+            steps = np.minimum(steps, total)
+        segment = np.ceil(steps / length).astype(int) - 1
+        for k in np.unique(segment[segment >= 0]):
+            v = values[segment == k]
+            rows.append({"run_id": run.run_id, "segment": int(k), "start": int(k * length),
+                         "end_step": int((k + 1) * length), "auc": float(v.mean()), "end": float(v[-1]),
+                         "n_evals": int(len(v))})
+    return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end_step", "auc", "end", "n_evals"])
+
+
 def mean_t_ci(values) -> tuple[float, float, int]:
     """(mean, half-width of the 95% Student-t CI, n) of the finite values; half-width NaN for n < 2."""
     x = np.asarray(values, dtype=float)

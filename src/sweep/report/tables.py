@@ -208,6 +208,38 @@ def segments(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions) -> tuple[
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
+def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, reference: str = "reset_all"
+                   ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per condition x wind x segment: the eval-success AUC and end-of-segment success (seed mean, 95% Student-t
+    half-width, n; stats.segment_evaluations) and each one's difference to the ``reference`` agent's on the same
+    segment, wind and --by values (95% percentile bootstrap resampling both agents' seeds). Returns (numbers, display:
+    one row per condition x wind, per segment 'AUC ± ci (Δ [lo, hi])' in %)."""
+    df = runs[["run_id", "wind", "condition"]].merge(seg, on="run_id")
+    refs = {c: baseline_of(conds.table, c, "agent", reference) for c in conds.order}
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        shown = {"Agent": cond, "Wind": wind, "Seeds": g["run_id"].nunique()}
+        ref = refs.get(cond)
+        theirs = df[(df["wind"] == wind) & (df["condition"] == ref)] if ref is not None else df.iloc[0:0]
+        for k, s in g.groupby("segment"):
+            row = {**_identity(conds, cond, wind), "condition": cond, "segment": int(k), "start": int(s["start"].iloc[0]),
+                   "end_step": int(s["end_step"].iloc[0]), "evals_per_run": float(s["n_evals"].mean())}
+            other = theirs[theirs["segment"] == k]
+            for m in ("auc", "end"):
+                mean, half, n = stats.mean_t_ci(s[m])
+                d, lo, hi = stats.mean_diff_ci(s[m], other[m]) if len(other) else (np.nan,) * 3
+                row.update({f"{m}_mean": mean, f"{m}_ci95": half, "n_seeds": n,
+                            f"{m}_vs_{reference}": d, f"{m}_vs_{reference}_low": lo, f"{m}_vs_{reference}_high": hi})
+            numbers.append(row)
+            cell = plus_minus(100 * row["auc_mean"], 100 * row["auc_ci95"], 0)
+            if np.isfinite(row[f"auc_vs_{reference}"]):
+                cell += " (Δ " + interval(100 * row[f"auc_vs_{reference}"], 100 * row[f"auc_vs_{reference}_low"],
+                                          100 * row[f"auc_vs_{reference}_high"], 0) + ")"
+            shown[f"{k} ({_steps(row['start'])}–{_steps(row['end_step'])})"] = cell
+        display.append(shown)
+    return pd.DataFrame(numbers), pd.DataFrame(display)
+
+
 def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key: str) -> tuple[pd.DataFrame, pd.DataFrame]:
     """A metric logged at a few steps (e.g. the probe at every wind change): (numbers: one row per condition x wind
     x step with the seed mean / ci95 / n, display table: one row per condition x wind, one column per step)."""
@@ -416,9 +448,26 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         "the wind schedule (wind.segment_steps timesteps at the speed in the header), mean ± 95% Student-t CI "
         "over seeds. A policy that collapses shows as a falling row; one that adapts, as a row that recovers "
         "after each change.\n\n" + markdown(seg_display.fillna("–")))
+    evals = stats.segment_evaluations(histories, runs)
+    if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():   # in-training evaluations per segment
+        e_numbers, e_display = segment_scores(runs, evals, conds)
+        e_numbers.to_csv(out / "segment_scores.csv", index=False)
+        flown = ", ".join(sorted({str(v) for v in runs.get("eval_condition", pd.Series(dtype=object)).dropna()})) or "fixed"
+        (out / "segment_scores.md").write_text(
+            made + "Learning within each segment of the schedule (segment k = timesteps (k S, (k+1) S], S = "
+            "wind.segment_steps): AUC = the area under the in-training eval-success curve within the segment "
+            "normalised by its length (the mean of its evenly spaced evaluations), % mean ± 95% Student-t CI over "
+            f"seeds (evaluations flown under eval.condition = {flown}: 'current' scores the condition being learned); "
+            "Δ = the agent's AUC minus reset_all's (a fresh network at every change) on the same segment, 95% "
+            "percentile-bootstrap CI resampling both agents' seeds. Δ > 0 on later segments: forward transfer; a Δ "
+            "that falls below 0 and keeps falling with the segment index: loss of plasticity. segment_scores.csv "
+            "also has the success at each segment's end and its difference.\n\n" + markdown(e_display.fillna("–")))
+        written_segments = [out / "segment_scores.csv", out / "segment_scores.md"]
+    else:
+        written_segments = []
     (out / "brief.txt").write_text(brief(s_display))
     written = [out / f for f in ("table3.csv", "table3.md", "table3.tex", "summary.csv", "summary.md",
-                                 "segments.csv", "segments.md", "brief.txt")]
+                                 "segments.csv", "segments.md", "brief.txt")] + written_segments
     if (histories["key"] == PROBE).any():
         p_numbers, p_display = at_steps(runs, histories, conds, PROBE)
         text = ("Plasticity probe (Lyle et al. 2022; plasticity/probe_loss): a copy of the policy network fitted for "

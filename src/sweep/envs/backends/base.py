@@ -5,6 +5,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from sweep.envs.vehicle import VehicleSegment
+
 
 class Vehicles(NamedTuple):
     """A backend's state arrays (the same objects, not copies), as compiled code takes them."""
@@ -36,6 +38,10 @@ class Backend:
     @property
     def vehicles(self) -> Vehicles:
         return Vehicles(self.x, self.v, self.q, self.w, self.rotor_speeds)
+
+    def set_vehicle(self, vehicle: VehicleSegment) -> None:
+        """Fly ``vehicle`` (a mass factor and rotor efficiencies on ``params``) from the next step on."""
+        raise NotImplementedError
 
     def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
         """Advance all vehicles by ``dt`` under constant commanded rotor speeds (N,4) and wind (N,3)."""

@@ -3,7 +3,8 @@
 The physics is RotorPy 3.0.0's ``Multirotor._s_dot_fn`` / ``compute_body_wrench`` with ``aero=True``
 and ``control_abstraction='cmd_motor_speeds'``, term by term:
 
-* rotor thrust ``k_eta w_i^2`` along body z, plus translational lift ``k_h (u_x^2 + u_y^2)`` on the
+* rotor thrust ``k_eta eta_i w_i^2`` along body z (``eta_i`` the rotor's efficiency, 1 in RotorPy's model:
+  ``sweep.envs.vehicle.VehicleSegment``), plus translational lift ``k_h (u_x^2 + u_y^2)`` on the
   local airspeed ``u_i`` of each rotor hub, ``u_i = R^T (v - wind) + omega x r_i``;
 * rotor drag (H force) ``-w_i diag(k_d, k_d, k_z) u_i`` at each hub, parasitic drag
   ``-|v_b| diag(c_Dx, c_Dy, c_Dz) v_b`` at the CoM (``v_b = R^T (v - wind)``);
@@ -29,7 +30,7 @@ import numba
 import numpy as np
 
 from sweep.envs.backends.base import Backend, Vehicles
-from sweep.envs.vehicle import GRAVITY
+from sweep.envs.vehicle import GRAVITY, NOMINAL, VehicleSegment, scaled_params
 
 
 class Physics(NamedTuple):
@@ -42,6 +43,7 @@ class Physics(NamedTuple):
     c_d: np.ndarray             # (3,) parasitic drag c_Dx, c_Dy, c_Dz
     mass: float
     k_eta: float
+    thrust_coef: np.ndarray     # (R,) k_eta * eta_i: each rotor's thrust per squared speed
     k_m: float
     k_d: float
     k_z: float
@@ -52,8 +54,10 @@ class Physics(NamedTuple):
     speed_max: float
 
 
-def physics(params: dict, dt: float) -> Physics:
-    """``Physics`` of a RotorPy params dict (same defaults as RotorPy)."""
+def physics(params: dict, dt: float, vehicle: VehicleSegment = NOMINAL) -> Physics:
+    """``Physics`` of a RotorPy params dict (same defaults as RotorPy) with ``vehicle``'s mass factor and rotor
+    efficiencies applied (``NOMINAL``: RotorPy's vehicle, bit for bit)."""
+    params = scaled_params(params, vehicle)
     if float(params.get("motor_noise_std", 0.0)) != 0.0:
         raise ValueError("FastBackend is deterministic: params['motor_noise_std'] must be 0")
     inertia = np.array([[params["Ixx"], params["Ixy"], params["Ixz"]],
@@ -70,6 +74,7 @@ def physics(params: dict, dt: float) -> Physics:
         c_d=np.array([params.get("c_Dx", 0.0), params.get("c_Dy", 0.0), params.get("c_Dz", 0.0)], dtype=np.float64),
         mass=float(params["mass"]),
         k_eta=float(params["k_eta"]),
+        thrust_coef=float(params["k_eta"]) * np.asarray(vehicle.rotor_efficiency, dtype=np.float64),
         k_m=float(params["k_m"]),
         k_d=float(params.get("k_d", 0.0)),
         k_z=float(params.get("k_z", 0.0)),
@@ -99,7 +104,7 @@ def _deriv_one(s, cmd, wind, p, out):
     """One vehicle's state derivative into ``out``; ``s`` is x(3) v(3) q(4) w(3) rotor speeds(R)."""
     geo, rdir, inertia, inv_inertia, c_d = p.rotor_geometry, p.rotor_dir, p.inertia, p.inv_inertia, p.c_d
     # every field read once, here: a field read inside the rotor loop costs ~30% of the step's speed
-    k_eta, k_m, k_d, k_z, k_h, k_flap = p.k_eta, p.k_m, p.k_d, p.k_z, p.k_h, p.k_flap
+    thrust, k_m, k_d, k_z, k_h, k_flap = p.thrust_coef, p.k_m, p.k_d, p.k_z, p.k_h, p.k_flap
     mass, inv_tau_m = p.mass, p.inv_tau_m
     nrot = geo.shape[0]
     q0, q1, q2, q3 = s[6], s[7], s[8], s[9]
@@ -126,7 +131,7 @@ def _deriv_one(s, cmd, wind, p, out):
         u2 = vb2 + (w0 * g1 - w1 * g0)
         h0 = -om * k_d * u0
         h1 = -om * k_d * u1
-        h2 = -om * k_z * u2 + k_eta * om * om + k_h * (u0 * u0 + u1 * u1)
+        h2 = -om * k_z * u2 + thrust[i] * om * om + k_h * (u0 * u0 + u1 * u1)
         f0 += h0
         f1 += h1
         f2 += h2
@@ -217,6 +222,9 @@ class FastBackend(Backend):
     def __init__(self, n: int, params: dict, dt: float) -> None:
         super().__init__(n, params, dt)
         self.physics = physics(params, self.dt)
+
+    def set_vehicle(self, vehicle: VehicleSegment) -> None:
+        self.physics = physics(self.params, self.dt, vehicle)
 
     def step(self, cmd_rotor_speeds: np.ndarray, wind: np.ndarray) -> None:
         step_vehicles(self.vehicles, np.ascontiguousarray(cmd_rotor_speeds, dtype=np.float64),

@@ -1,0 +1,67 @@
+#!/usr/bin/env bash
+# The transfer-gap table of docs/conditions.md (issue 33 §2), phase by phase, resumable.
+#
+#   docs/conditions/run.sh train        # PPO (JAX, 16 x 128, 5M steps, 4 seeds) under each condition alone
+#   docs/conditions/run.sh reevaluate   # every run's kept policies flown under each condition of its family
+#   docs/conditions/run.sh table        # docs/conditions/transfer_gap.md/.csv
+#
+# Conditions (arms: the wind tag, +vehicle where not nominal): x3 (3 m/s +x), x1p5 (1.5 m/s +x), mx3 (3 m/s -x),
+# y3 (3 m/s +y); none (still air), none+mass1p5 (x1.5 mass and inertia), none+motor0p7 (rotor 1 at 70% thrust).
+# The store, checkpoints and sweep dirs live in $STUDY; the code is the pinned commit's (a worktree there).
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+STUDY=${STUDY:-/work/studies/conditions}
+COMMIT=${COMMIT:-HEAD}
+PY=${PYTHON:-$ROOT/.venv/bin/python}
+export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
+mkdir -p "$STUDY"
+CODE=$STUDY/code-$(git -C "$ROOT" rev-parse --short "$COMMIT")
+[ -d "$CODE" ] || git -C "$ROOT" worktree add --detach "$CODE" "$COMMIT"
+
+sweep() {  # sweep NAME OVERRIDES...
+  local name=$1; shift
+  (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep -m experiment=transfer train.checkpoint_dir="$STUDY/ckpt" \
+     hydra.sweep.dir="$STUDY/multirun/$name" "$@")
+}
+fly() {  # fly TRAINED_WHERE... -- NAME OVERRIDES...: the runs' policies under another condition (start seed 7)
+  local where=() ; while [ "$1" != "--" ]; do where+=(--where "$1"); shift; done; shift
+  local name=$1; shift
+  (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.reevaluate --experiment transfer "${where[@]}" --name "$name" \
+     eval.condition=fixed eval.seed=7 eval.episodes=20 "$@")
+}
+WIND_ARMS=(x3 x1p5 mx3 y3)
+declare -A WIND=([x3]="3.0 [1.0,0.0,0.0]" [x1p5]="1.5 [1.0,0.0,0.0]" [mx3]="3.0 [-1.0,0.0,0.0]" [y3]="3.0 [0.0,1.0,0.0]")
+declare -A STILL=([nominal]="1.0 [1.0,1.0,1.0,1.0]" [mass1p5]="1.5 [1.0,1.0,1.0,1.0]" [motor0p7]="1.0 [0.7,1.0,1.0,1.0]")
+still_name() { [ "$1" = nominal ] && echo on_none || echo "on_none_$1"; }
+
+case ${1:-} in
+  train)
+    for arm in "${WIND_ARMS[@]}"; do
+      read -r speed dir <<<"${WIND[$arm]}"
+      sweep "$arm" wind=none wind.name="$arm" "wind.speeds=[$speed]" "wind.direction=$dir"
+    done
+    for vehicle in nominal mass1p5 motor0p7; do
+      read -r mass eff <<<"${STILL[$vehicle]}"
+      sweep "none-$vehicle" wind=none vehicle.name="$vehicle" "vehicle.segments=[{mass:$mass,rotor_efficiency:$eff}]"
+    done ;;
+  reevaluate)
+    for trained in "${WIND_ARMS[@]}"; do
+      for target in "${WIND_ARMS[@]}"; do
+        read -r speed dir <<<"${WIND[$target]}"
+        fly wind="$trained" -- "on_$target" eval.wind_speed="$speed" "eval.direction=$dir"
+      done
+    done
+    for trained in nominal mass1p5 motor0p7; do
+      for target in nominal mass1p5 motor0p7; do
+        read -r mass eff <<<"${STILL[$target]}"
+        fly wind=none vehicle="$trained" -- "$(still_name "$target")" eval.wind_speed=0.0 eval.mass="$mass" \
+            "eval.rotor_efficiency=$eff"
+      done
+    done ;;
+  table)
+    (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.report.transfer --experiment transfer --out "$ROOT/docs/conditions" \
+       --change "paper speed 3 -> 1.5 m/s=x3:x1p5" --change "flip +x -> -x=x3:mx3" --change "rotate +x -> +y=x3:y3" \
+       --change "payload x1.0 -> x1.5=none:none+mass1p5" --change "motor 1 at 100% -> 70%=none:none+motor0p7") ;;
+  *) echo "usage: $0 train|reevaluate|table" >&2; exit 2 ;;
+esac
