@@ -96,6 +96,13 @@ def test_the_nominal_vehicle_is_rotorpys_bit_for_bit():
     np.testing.assert_array_equal(a.q, b.q)
 
 
+def test_a_vehicle_segment_checks_its_values():
+    """The Python API (and the Gymnasium env) get the config's rules: 4 efficiencies in (0, 1], a mass factor > 0."""
+    for bad in (dict(rotor_efficiency=(1.0, 1.0, 1.0)), dict(rotor_efficiency=(1.2, 1.0, 1.0, 1.0)), dict(mass=0.0)):
+        with pytest.raises(ValueError, match="must be"):
+            VehicleSegment(**bad)
+
+
 def test_wind_directions_per_segment():
     flip = WindSchedule([3.0, 3.0], segment_steps=10, directions=[[1, 0, 0], [-2, 0, 0]])
     np.testing.assert_array_equal(flip.velocity_at(9), [3.0, 0.0, 0.0])

@@ -115,6 +115,10 @@ INVALID = [
     ("wind=flip wind.directions=[[1,0],[-1,0,0]]", "wind.directions=[[1, 0], [-1, 0, 0]]: must be null or a list of non-zero"),
     ("wind=rotate wind.speeds=[3.0]", "wind.directions: 4 directions for 1 speeds: must be one per speed"),
     ("eval.mass=-1", "eval.mass=-1: must be a number > 0"),
+    ("vehicle=payload vehicle.segments.1.mass=2.0", "vehicle.segments[1]: mass=2, rotor_efficiency=[1.0, 1.0, 1.0, 1.0]: "
+                                                    "thrust-to-weight 0.98; must be > 1"),
+    ("eval.rotor_efficiency=[0.1,0.1,0.1,0.1]", "eval: mass=1, rotor_efficiency=[0.1, 0.1, 0.1, 0.1]: thrust-to-weight"),
+    ("vehicle.segments.0.mass=1.5", "vehicle.name='nominal' with vehicle.segments[0] mass=1.5"),
     ("eval.condition=last", "eval.condition='last': must be fixed|current|all"),
     # the JAX learner's own rules
     ("agent.learner=jax env.backend=rotorpy", "env.backend='rotorpy': must be fast with agent.learner=jax"),

@@ -132,7 +132,7 @@ def drive_recom(recom: Recom, rollouts: list[tuple[float, list[float]]]) -> list
         episodes = tuple(Episode(*(r if isinstance(r, tuple) else (r, 1)), False) for r in returns)
         timesteps += 100
         rollout = RolloutRecord(index=0, timesteps=timesteps, episodes=episodes, mean_recent_return=None,
-                                condition=Condition(0, 0.0))
+                                condition=Condition(0, (0.0, 0.0, 0.0)))
         recom.logged.update(recom.after_rollout(learner, rollout))
         lrs.append(learner.lr)
     return lrs

@@ -312,6 +312,14 @@ def expected_curves(store: str, experiment: str) -> set[str]:
             stems.add(f"{stem}_paper")
     if "eval_success_paper" in stems:  # evaluations during training: the performance profile of the late ones
         stems |= {"performance_profile_paper", "interval_keeps_hovering"}
+    for r in runs:   # evaluations in more than one segment of the wind schedule: the per-segment scores
+        if "wind.segment_steps" not in r.data.params:   # hand-logged runs without the schedule's params
+            continue
+        length = int(r.data.params["wind.segment_steps"])
+        total = int(r.data.params.get("train.total_timesteps", 1 << 62))
+        steps = {m.step for m in client.get_metric_history(r.info.run_id, "eval/success_rate")}
+        if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
+            stems.add("segment_scores_paper")
     finals = {k for r in runs for k in r.data.metrics}
     stems |= {f"interval_{name}" for name, key in [("final_reward", "rollout/ep_rew_mean"),
                                                     ("success_final", "eval/success_rate"),
@@ -319,7 +327,8 @@ def expected_curves(store: str, experiment: str) -> set[str]:
     return stems
 
 
-PANELLED = ("eval_flights_3d", "eval_position_axes")  # a panel per condition: one column wide whatever --by says
+PANELLED = ("eval_flights_3d", "eval_position_axes",  # a panel per condition: one column wide whatever --by says
+            "segment_scores_paper")  # agents side by side in one column
 
 
 # -- tests ---------------------------------------------------------------------------------------------------
@@ -734,7 +743,8 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
-                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_best"})
+                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_best",
+                                    "segment_scores_paper"})   # its evaluations span several wind segments
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -920,7 +930,8 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     out = tmp_path / "out"
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
-                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_final"})
+                                    "interval_keeps_hovering", "interval_final_reward", "interval_success_final",
+                                    "segment_scores_paper"})   # its evaluations span several wind segments
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -1365,7 +1376,7 @@ def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):
     assert got["gap_success"] == pytest.approx(0.8) and got["gap_success_ci95"] == pytest.approx(0.0, abs=1e-12)
     assert got["A_on_A_mse"] == pytest.approx(0.3 + 0.1) and got["gap_mse"] == pytest.approx(-0.8)
     shown = md_table(tmp_path / "out" / "transfer_gap.md").iloc[0]
-    assert shown["A on B: success (%)"].startswith("10 ± ") and shown["Gap A on A − A on B: success (pp)"] == "80 ± 0"
+    assert shown["A on B: success (%)"].startswith("10 ± ") and shown["A on B: success (%)"].endswith("(20, 0)") and shown["Gap A on A − A on B: success (pp)"] == "80 ± 0"
     capsys.readouterr()
     assert transfer.main(["--experiment", "transfer", "--uri", uri, "--change", "payload=none:none+mass1p5"]) == 1
     err = capsys.readouterr().err

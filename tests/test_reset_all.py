@@ -35,7 +35,7 @@ def test_a_reset_draws_a_fresh_init_from_the_learner_generator_and_restarts_adam
     before = model.parameter_arrays()
     generator = np.random.Generator(np.random.PCG64())
     generator.bit_generator.state = model.rng.bit_generator.state
-    logged = ResetAll().at_change(model, Condition(1, 2.0))
+    logged = ResetAll().at_change(model, Condition(1, (2.0, 0.0, 0.0)))
     assert logged == {"remedy/reset_all/resets": 1.0}
     expected = fresh_parameters({k: v.shape for k, v in before.items()}, model.networks, generator)
     after = model.parameter_arrays()

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The transfer-gap table of docs/conditions.md (issue 33 §2), phase by phase, resumable.
+# The transfer-gap table of docs/conditions.md (issue 33 §2), phase by phase. train resumes (resume=auto); reevaluate
+# flies every cell again when re-run (the scores logged anew at the same step, the newest read).
 #
 #   docs/conditions/run.sh train        # PPO (JAX, 16 x 128, 5M steps, 4 seeds) under each condition alone
 #   docs/conditions/run.sh reevaluate   # every run's kept policies flown under each condition of its family

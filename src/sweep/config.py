@@ -470,12 +470,31 @@ def validate_section(cfg: DictConfig, name: str) -> None:
     _check(OmegaConf.to_container(cfg[name], resolve=True), _hints(SweepConfig)[name], name, spec.metadata)
 
 
+def _vehicle_rules(c: DictConfig) -> None:
+    """Every vehicle flown can lift itself (thrust-to-weight > 1 at full rotor speed), and ``vehicle.name=nominal``
+    is RotorPy's vehicle (the tag the report and ``--where vehicle=`` split runs by)."""
+    from sweep.envs.vehicle import VehicleSegment, crazyflie_params, thrust_to_weight  # noqa: PLC0415 (RotorPy)
+
+    params = crazyflie_params(c.env.motor_time_constant)
+    flown = [(f"vehicle.segments[{i}]", s) for i, s in enumerate(c.vehicle.segments)] + [("eval", c.eval)]
+    for where, s in flown:
+        segment = VehicleSegment(float(s.mass), tuple(float(e) for e in s.rotor_efficiency))
+        ratio = thrust_to_weight(params, segment)
+        if ratio <= 1.0:
+            raise ConfigError(f"{where}: mass={segment.mass:g}, rotor_efficiency={list(segment.rotor_efficiency)}: "
+                              f"thrust-to-weight {ratio:.2f}; must be > 1 (the vehicle cannot lift itself)")
+        if where != "eval" and c.vehicle.name == "nominal" and not segment.nominal:
+            raise ConfigError(f"vehicle.name='nominal' with {where} mass={segment.mass:g}, rotor_efficiency="
+                              f"{list(segment.rotor_efficiency)}: must be another name (nominal means RotorPy's vehicle)")
+
+
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent
     if c.wind.directions is not None and len(c.wind.directions) != len(c.wind.speeds):
         raise ConfigError(f"wind.directions: {len(c.wind.directions)} directions for {len(c.wind.speeds)} speeds: must "
                           "be one per speed (or null: wind.direction for every speed)")
+    _vehicle_rules(c)
     if c.env.backend not in c.env.backends:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:

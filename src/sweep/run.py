@@ -154,18 +154,21 @@ def evaluate_policies(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path
             model.write_parameters(kept["params"])
             policy = metrics.KEPT[reading]
             scores = evaluate_and_store(model, cfg, tracked, out_dir, policy,
-                                        {"source_step": kept["step"], "source_score": kept["score"]})
+                                        {"source_step": kept["step"], "source_score": kept["score"]}, kept["step"])
             log.info("[%s] %s (from %s steps): %s", name, metrics.POLICIES[policy], f"{kept['step']:,}",
                      ", ".join(f"{k}={v:.3g}" for k, v in scores.items()))
         model.write_parameters(final)
 
 
 def evaluate_and_store(model, cfg: DictConfig, tracked: TrackedRun, out_dir: Path, policy: str,
-                       extra: dict[str, float] | None = None) -> dict[str, float]:
+                       extra: dict[str, float] | None = None, trained_to: int | None = None) -> dict[str, float]:
     """The evaluation protocol on the learner's current policy, scored as ``policy`` (a ``metrics.POLICIES``
     key): metrics under its prefix at the final step, the flights as ``eval<suffix>_trajectories.npz`` and the
-    model as ``model<suffix>.zip`` (run artifacts; suffix "" for the final policy, else "_best", "_best_eval")."""
-    conditions = flight_conditions(cfg.eval, cfg.wind, cfg.vehicle, model.num_timesteps, cfg.train.total_timesteps)
+    model as ``model<suffix>.zip`` (run artifacts; suffix "" for the final policy, else "_best", "_best_eval").
+    ``trained_to``: the timestep the policy was kept at (a kept policy flies ``eval.condition=current`` under the
+    condition it was kept under; None: the learner's)."""
+    step = model.num_timesteps if trained_to is None else trained_to
+    conditions = flight_conditions(cfg.eval, cfg.wind, cfg.vehicle, step, cfg.train.total_timesteps)
     values, flights = evaluate(model, cfg.eval, cfg.env, conditions)
     scores = {metrics.eval_key(policy, k): float(v) for k, v in {**values, **(extra or {})}.items()}
     suffix = "" if policy == "final" else f"_{policy}"

@@ -221,6 +221,8 @@ ARCHIVED_FROM = "archived_from"  # tag of an imported run: the run id it was exp
 
 
 WHERE_TAGS = ("agent", "wind", "vehicle", "seed")  # what a ``where`` key names in a run's tags; any other key, a param
+
+
 def parse_where(items: list[str]) -> dict[str, str]:
     """``["wind=none", "env.n_envs=16"]`` -> {key: value}; ValueError naming a malformed or repeated item. A value
     matches the logged string exactly (``agent.ppo.learning_rate=0.0003``, not ``3e-4``)."""
@@ -236,7 +238,8 @@ def parse_where(items: list[str]) -> dict[str, str]:
 
 
 def run_matches(params: dict[str, str], tags: dict[str, str], where: dict[str, str]) -> bool:
-    """Whether a run has every ``where`` value: tag ``agent``/``wind``/``seed``, else the flattened config param."""
+    """Whether a run has every ``where`` value: tag ``agent``/``wind``/``vehicle``/``seed`` (a run without the vehicle
+    tag flew the nominal one), else the flattened config param."""
     return all((tags.get(key, TAG_DEFAULTS.get(key)) if key in WHERE_TAGS else params.get(key)) == value
                for key, value in where.items())
 

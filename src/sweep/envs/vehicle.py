@@ -44,12 +44,24 @@ class VehicleSegment:
     mass: float = 1.0
     rotor_efficiency: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
 
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.mass) and self.mass > 0):
+            raise ValueError(f"vehicle mass factor {self.mass!r}: must be a number > 0")
+        if len(self.rotor_efficiency) != 4 or not all(0 < e <= 1 for e in self.rotor_efficiency):
+            raise ValueError(f"rotor_efficiency {list(self.rotor_efficiency)!r}: must be 4 numbers in (0, 1]")
+
     @property
     def nominal(self) -> bool:
         return self.mass == 1.0 and all(e == 1.0 for e in self.rotor_efficiency)
 
 
 NOMINAL = VehicleSegment()
+
+
+def thrust_to_weight(params: dict, segment: VehicleSegment) -> float:
+    """Total thrust at full rotor speed over the weight of the segment's vehicle (1.95 for RotorPy's Crazyflie)."""
+    thrust = params["k_eta"] * params["rotor_speed_max"] ** 2 * sum(segment.rotor_efficiency)
+    return float(thrust / (params["mass"] * segment.mass * GRAVITY))
 
 
 def scaled_params(params: dict, segment: VehicleSegment) -> dict:

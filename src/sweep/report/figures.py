@@ -43,8 +43,9 @@ def timestep_axis(ax, x_max: float) -> None:
     ax.set_xlabel(f"Timesteps ({unit})" if unit else "Timesteps")
 
 
-def wind_changes(speeds: list[float], segment: float, x_max: float) -> list[tuple[float, float, float]]:
-    """(start, end, speed) of each constant-wind stretch within [0, x_max], as WindSchedule.speed_at has it."""
+def wind_changes(speeds: list, segment: float, x_max: float) -> list[tuple[float, float, float | str]]:
+    """(start, end, label) of each constant stretch within [0, x_max], the labels repeating every len(speeds)
+    segments as WindSchedule.speed_at has it: wind speeds, or the conditions' labels (load.segment_labels)."""
     if not speeds or not np.isfinite(segment) or segment <= 0:
         return []
     spans, k = [], 0
@@ -59,20 +60,24 @@ def wind_changes(speeds: list[float], segment: float, x_max: float) -> list[tupl
 
 
 def mark_wind(ax, spans, speeds: bool = True) -> None:
-    """Dotted vertical line at each wind change, the speed (m/s) written above each stretch (if ``speeds``)."""
+    """Dotted vertical line at each wind change, the speed (m/s) written above each stretch (if ``speeds``); with
+    conditions' labels (load.segment_labels) the label instead, every other stretch on a grey band."""
     if len(spans) < 2:
         return
     left, right = ax.get_xlim()
-    for start, end, speed in spans:
+    conditions = any(isinstance(s, str) for _, _, s in spans)   # labelled conditions: every other one shaded
+    for i, (start, end, speed) in enumerate(spans):
+        if conditions and i % 2:
+            ax.axvspan(start, end, color="0.93", zorder=0, linewidth=0)
         if start > 0:
             ax.axvline(start, color="0.45", linestyle=":", linewidth=0.7, zorder=0)
         if not speeds:
             continue
         if end - start < 0.04 * (right - left):  # a sliver (e.g. the last rollout past a change): no label
             continue
-        ax.text((max(start, left) + end) / 2, 1.01, f"{speed:.1f}", transform=ax.get_xaxis_transform(), ha="center",
-                va="bottom", fontsize=7, color="0.3")
-    if speeds:
+        ax.text((max(start, left) + end) / 2, 1.01, speed if isinstance(speed, str) else f"{speed:.1f}",
+                transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=7, color="0.3")
+    if speeds and not any(isinstance(s, str) for _, _, s in spans):
         ax.text(1.0, 1.01, " m/s", transform=ax.transAxes, ha="left", va="bottom", fontsize=7, color="0.3")
 
 
@@ -113,7 +118,7 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
     step = PANEL_STEP[len(rows) <= 3]
     fig, axes = plt.subplots(len(rows), len(panels), sharex=True, sharey="row", squeeze=False,
                              figsize=(style.figure_width(len(panels)), 2.3 + step * (len(rows) - 1)))
-    spans = wind_changes(sub.iloc[0]["speeds"], sub.iloc[0]["segment_steps"], x_max)
+    spans = wind_changes(sub.iloc[0]["segment_labels"], sub.iloc[0]["segment_steps"], x_max)
     values = thresholds(sub)
     seeds = {}
     for j, (title, shown) in enumerate(panels):
@@ -234,11 +239,13 @@ def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference
     fig, axes = plt.subplots(2 if has_diff else 1, 1, sharex=True, squeeze=False,
                              figsize=(style.figure_width(1), 3.6 if has_diff else 2.2))
     width = 0.8 / max(len(shown), 1)
+    handles = []
     for i, cond in enumerate(shown):
         rows = sub[sub[key] == cond].sort_values("segment")
         x = rows["segment"].to_numpy() + (i - (len(shown) - 1) / 2) * width
         look = dict(color=conds.color(cond), marker="o", ms=3, lw=0, elinewidth=0.9, capsize=1.5)
-        axes[0, 0].errorbar(x, 100 * rows["auc_mean"], yerr=100 * rows["auc_ci95"].fillna(0), label=conds.series(cond), **look)
+        axes[0, 0].errorbar(x, 100 * rows["auc_mean"], yerr=100 * rows["auc_ci95"].fillna(0), **look)
+        handles.append(Line2D([], [], color=conds.color(cond), marker="o", ms=3, lw=0, label=conds.series(cond)))
         if has_diff and rows[diff].notna().any():
             d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
             axes[1, 0].errorbar(x, d, yerr=[np.nan_to_num(d - lo), np.nan_to_num(hi - d)], **look)
@@ -249,7 +256,8 @@ def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference
         axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
     axes[-1, 0].set_xlabel("Segment of the schedule (each wind.segment_steps)")
     axes[-1, 0].xaxis.set_major_locator(MaxNLocator(integer=True))
-    axes[0, 0].legend(fontsize="x-small", ncol=2, frameon=False, loc="lower left", bbox_to_anchor=(0, 1.02))
+    axes[0, 0].legend(handles=handles, fontsize="x-small", ncol=2, frameon=False, loc="lower left",
+                      bbox_to_anchor=(0, 1.02))
     fig.suptitle(f"Learning per segment, wind {wind}: mean over seeds, bars 95% CI", fontsize="small", y=1.0)
     return save(fig, out, f"segment_scores_{wind}")
 

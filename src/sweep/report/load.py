@@ -29,7 +29,8 @@ from sweep import metrics  # noqa: E402
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
-PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "train.total_timesteps": "total_timesteps",
+PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "wind.directions": "directions",
+              "vehicle.segments": "vehicle_segments", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius",
               "eval.policy": "eval_policy", "eval.condition": "eval_condition",  # None in stores logged before it existed (final policy only)
               # the thresholds of the plasticity readings, for the dormant figure's labels (None where not logged)
@@ -168,6 +169,8 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
         return df, notes
     df["segment_steps"] = pd.to_numeric(df["segment_steps"], errors="coerce")
     df["speeds"] = df["speeds"].map(lambda s: json.loads(s) if isinstance(s, str) else [])
+    df["segment_labels"] = [segment_labels(r["speeds"], r.get("directions"), r.get("vehicle_segments"))
+                            for _, r in df.iterrows()]
     df = df.sort_values(["agent", "wind", "seed", "start_time"])
     dupes = df.duplicated(["agent", *by, "wind", "seed"], keep="last")
     if dupes.any():
@@ -176,6 +179,32 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
                      "(use --sweep to pick one sweep)")
         df = df[~dupes]
     return df.reset_index(drop=True), notes
+
+
+AXES = {(1, 0): "+x", (-1, 0): "−x", (0, 1): "+y", (0, -1): "−y"}
+
+
+def segment_labels(speeds: list[float], directions: str | None, vehicles: str | None) -> list:
+    """What changes at each of the wind's segments, for the figures' bands: the speeds (m/s) when only the speed
+    changes, else one short label per segment of the two lists' common period: the wind (speed and direction,
+    e.g. '3 +x') and the vehicle where not nominal ('m×1.3', 'η1 0.7')."""
+    dirs = json.loads(directions) if isinstance(directions, str) and directions not in ("null", "None") else None
+    segs = json.loads(vehicles) if isinstance(vehicles, str) else None
+    if dirs is None and (not segs or len(segs) == 1 and segs[0]["mass"] == 1 and set(segs[0]["rotor_efficiency"]) == {1}):
+        return list(speeds)
+    segs = segs or [{"mass": 1.0, "rotor_efficiency": [1.0] * 4}]
+    labels, wind_changes = [], dirs is not None or len(set(speeds)) > 1
+    for k in range(int(np.lcm(len(speeds) or 1, len(segs)))):
+        text = f"{speeds[k % len(speeds)]:g}" if speeds and wind_changes else ""
+        if dirs is not None:
+            d = dirs[k % len(dirs)]
+            text += " " + AXES.get((int(np.sign(round(d[0], 6))), int(np.sign(round(d[1], 6)))), "") if not d[2] else " ↕"
+        seg = segs[k % len(segs)]
+        if seg["mass"] != 1:
+            text += f" m×{seg['mass']:g}"
+        text += "".join(f" η{i + 1} {e:g}" for i, e in enumerate(seg["rotor_efficiency"]) if e != 1)
+        labels.append(text.strip() or "nominal")
+    return labels
 
 
 def load_histories(client: MlflowClient, runs: pd.DataFrame,

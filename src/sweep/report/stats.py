@@ -134,7 +134,8 @@ def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame
 
 
 def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
-    """Per run and segment k (the k-th hold of the run's ``wind.segment_steps``): the in-training evaluations logged
+    """Per run and segment k (the k-th hold of the run's ``wind.segment_steps``; a vehicle schedule on another clock is
+    not split by it: give it the same ``segment_steps``): the in-training evaluations logged
     at steps in (k S, (k+1) S] (the final evaluation counts in the last segment). ``auc``: the area under the
     eval-success curve within the segment, normalised by its length (the evaluations are evenly spaced, so their
     mean); ``end``: the success of the segment's last evaluation; ``n_evals``. Segments with no evaluation are

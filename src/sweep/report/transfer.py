@@ -43,21 +43,22 @@ def reeval_name(arm: str) -> str:
 
 def scores(client, exp_id: str, policy: str) -> pd.DataFrame:
     """One row per FINISHED run: run_id, arm, seed, and every logged eval field of ``policy`` (own and re-flown
-    ``on_*/``) as ``<prefix>/<field>`` columns (the newest run of an arm and seed)."""
+    ``on_*/``) as ``<prefix>/<field>`` columns (the newest run of an agent, arm and seed)."""
     prefix = metrics.POLICIES[policy]
     rows = []
     for run in load._all_runs(client, exp_id):
         if run.info.status != "FINISHED":
             continue
         tags, logged = run.data.tags, run.data.metrics
-        row = {"run_id": run.info.run_id, "arm": metrics.condition_arm(tags), "seed": int(tags.get("seed", -1)),
+        row = {"run_id": run.info.run_id, "agent": tags.get("agent", "?"), "arm": metrics.condition_arm(tags),
+               "seed": int(tags.get("seed", -1)),
                "start_time": run.info.start_time}
         row.update({k: v for k, v in logged.items() if k.split("/")[-2:-1] == [prefix] and k.split("/")[-1] in FIELDS})
         rows.append(row)
     df = pd.DataFrame(rows)
     if df.empty:
         return df
-    return df.sort_values("start_time").drop_duplicates(["arm", "seed"], keep="last").reset_index(drop=True)
+    return df.sort_values("start_time").drop_duplicates(["agent", "arm", "seed"], keep="last").reset_index(drop=True)
 
 
 def _measures(df: pd.DataFrame, where: str, prefix: str) -> pd.DataFrame:
@@ -86,8 +87,9 @@ def gap_table(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str
             for measure, scale, digits in (("success", 100.0, 0), ("mse", 1.0, 3)):
                 mean, half, n = stats.mean_t_ci(m[measure])
                 row.update({f"{key}_{measure}": mean, f"{key}_{measure}_ci95": half, f"{key}_n": n})
+            per_seed = ", ".join(f"{100 * v:.0f}" for v in m.sort_values("seed")["success"])
             shown[f"{cell}: success (%)"] = plus_minus(100 * row[f"{key}_success"], 100 * row[f"{key}_success_ci95"], 0) \
-                + f" (n={row[f'{key}_n']})"
+                + f" ({per_seed})"
             shown[f"{cell}: MSE (m²)"] = plus_minus(row[f"{key}_mse"], row[f"{key}_mse_ci95"], 3)
         paired = cells["A on A"].merge(cells["A on B"], on="seed", suffixes=("_aa", "_ab"))
         for measure in ("success", "mse"):
@@ -113,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--experiment", required=True)
     parser.add_argument("--change", action="append", required=True, metavar="NAME=A:B")
     parser.add_argument("--policy", default="best_eval", choices=list(metrics.POLICIES))
+    parser.add_argument("--agent", help="the agent whose runs to read (needed when the experiment has several)")
     parser.add_argument("--out", type=Path, default=Path("."))
     parser.add_argument("--uri", help="MLflow store (default: $MLFLOW_TRACKING_URI, else <project root>/mlflow.db)")
     args = parser.parse_args(argv)
@@ -122,6 +125,13 @@ def main(argv: list[str] | None = None) -> int:
         client = load.client_for(uri)
         exp_id, _ = load.pick_experiment(client, args.experiment)
         df = scores(client, exp_id, args.policy)
+        agents = sorted(set(df["agent"])) if len(df) else []
+        if args.agent is not None:
+            if args.agent not in agents:
+                raise ValueError(f"--agent {args.agent}: no FINISHED run of it (agents there: {', '.join(agents) or 'none'})")
+            df = df[df["agent"] == args.agent]
+        elif len(agents) > 1:
+            raise ValueError(f"runs of several agents ({', '.join(agents)}): choose one with --agent")
         arms = set(df["arm"]) if len(df) else set()
         missing = sorted({arm for _, a, b in changes for arm in (a, b)} - arms)
         if missing:
@@ -137,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             "A on A = runs trained under A alone, flown under A; A on B = the same policies flown under B; B on B = "
             "runs trained under B alone, flown under B (every cell re-flown by sweep.reevaluate on starts of its own "
             "seed, not those the kept policy was chosen on). Success rate and position MSE (summed over axes), seed mean ± 95% Student-t "
-            "CI; gap = A on A − A on B, paired by seed, 95% Student-t CI.\n\n" + markdown(display))
+            "CI, per seed in parentheses (seed order); gap = A on A − A on B, paired by seed, 95% Student-t CI.\n\n" + markdown(display))
     (args.out / "transfer_gap.md").write_text(text + "\n")
     print(text)
     return 0
