@@ -63,6 +63,11 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     assert not any(k.startswith("dup/") for k in client.get_run(windy).data.metrics)
     assert any(k.startswith("dup/") for k in client.get_run(still).data.metrics)
 
+    # --policy: only that stored policy is flown (the transfer-gap study flies the kept one under each condition)
+    assert main(["--experiment", EXP, "--where", "seed=1", "--name", "only", "--policy", "best"]) == 0
+    flown = {k.split("/")[1] for k in client.get_run(still).data.metrics if k.startswith("only/")}
+    assert flown == {"eval_best"}
+
 
 def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(in_tmp, tmp_path):
     # The JAX learner stores its policy as an SB3 model, flown here with torch's forward pass instead of XLA's.

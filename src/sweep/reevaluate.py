@@ -90,15 +90,15 @@ def run_config(stored: Path, overrides: DictConfig) -> DictConfig:
 
 
 def prepare(uri: str, runs: list[tuple[str, dict[str, str], dict[str, str]]], overrides: DictConfig,
-            work: Path) -> tuple[list[StoredRun], list[str], list[str]]:
+            work: Path, policies: tuple[str, ...] = tuple(MODELS)) -> tuple[list[StoredRun], list[str], list[str]]:
     """Download every run's config and models and check its eval block with the overrides, before any flight:
     (the newest run of each agent, wind and seed that stored a config and a model, the names of the runs without
     them, the names of the older runs of a repeated agent/wind/seed, left out like the report leaves them out)."""
     stored, skipped = {}, []
     for i, (run_id, params, tags) in enumerate(runs):
         name, agent = tags.get("run_name", run_id[:8]), tags.get("agent", "?")
-        files = download_artifacts(uri, run_id, [CONFIG, *MODELS.values()], work / str(i))
-        models = {policy: files[artifact] for policy, artifact in MODELS.items() if artifact in files}
+        files = download_artifacts(uri, run_id, [CONFIG, *(MODELS[p] for p in policies)], work / str(i))
+        models = {policy: files[MODELS[policy]] for policy in policies if MODELS[policy] in files}
         if CONFIG not in files or not models:
             skipped.append(name)
             continue
@@ -164,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="only runs with this tag (agent, wind, seed) or param (its logged string, e.g. "
                              "env.n_envs=16); repeat with other keys to require several")
     parser.add_argument("--name", required=True, help="the metric prefix of these scores, e.g. still_air")
+    parser.add_argument("--policy", action="append", choices=list(MODELS), metavar="POLICY",
+                        help=f"fly only this stored policy ({', '.join(MODELS)}; repeat for several; default: all)")
     parser.add_argument("--vs", metavar="AGENT", help="add each agent's success difference to this agent's, e.g. ppo")
     parser.add_argument("--out", type=Path, help="also write the table to this Markdown file")
     parser.add_argument("--uri", help="MLflow store (default: $MLFLOW_TRACKING_URI, else <project root>/mlflow.db)")
@@ -181,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             if not runs:
                 raise ConfigError(f"no FINISHED run of {args.experiment!r} matches "
                                   + " ".join(f"{k}={v}" for k, v in where.items()))
-            stored, skipped, older = prepare(uri, runs, overrides, Path(tmp))
+            stored, skipped, older = prepare(uri, runs, overrides, Path(tmp), tuple(args.policy or MODELS))
             if args.vs and args.vs not in {r.agent for r in stored}:
                 raise ConfigError(f"--vs {args.vs}: no selected run of that agent (tag agent, e.g. ppo) stored a model")
         except (ConfigError, ValueError) as err:

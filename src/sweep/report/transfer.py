@@ -17,7 +17,8 @@ for the three, and none of them on the starts the kept policy was chosen on (the
 Per change, for the policy ``--policy`` (``best_eval``, the default: the policy kept at the highest in-training
 eval return, i.e. the one that hovered best under its own condition; or ``final``, ``best``): success rate (%)
 and position MSE (the per-axis MSEs summed, m²), seed mean ± 95% Student-t CI; the gap A on A − A on B, paired by
-seed, with its 95% Student-t CI. Written to ``<out>/transfer_gap.md`` and ``.csv``.
+seed, with its 95% Student-t CI, over all seeds and over the seeds whose policy hovers under A (success >= 50%:
+a seed that never learned the hover has no gap to show). Written to ``<out>/transfer_gap.md`` and ``.csv``.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ from sweep.report import load, stats
 from sweep.report.tables import markdown, plus_minus
 
 FIELDS = ("success_rate", "mse_x", "mse_y", "mse_z")
+HOVERS = stats.HOVER   # a policy hovers under a condition: success >= this (the leaderboard's threshold)
 
 
 def reeval_name(arm: str) -> str:
@@ -95,7 +97,12 @@ def gap_table(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str
         for measure in ("success", "mse"):
             mean, half, n = stats.mean_t_ci(paired[f"{measure}_aa"] - paired[f"{measure}_ab"])
             row.update({f"gap_{measure}": mean, f"gap_{measure}_ci95": half, "gap_n": n})
+        hovering = paired[paired["success_aa"] >= HOVERS]   # the seeds whose policy hovers under A
+        mean, half, n = stats.mean_t_ci(hovering["success_aa"] - hovering["success_ab"])
+        row.update({"gap_hovering_success": mean, "gap_hovering_success_ci95": half, "gap_hovering_n": n})
         shown["Gap A on A − A on B: success (pp)"] = plus_minus(100 * row["gap_success"], 100 * row["gap_success_ci95"], 0)
+        shown[f"Gap, seeds hovering under A (≥ {HOVERS:.0%}): success (pp)"] = (
+            plus_minus(100 * mean, 100 * half, 0) + f" (n={n})" if n else "–")
         shown["Gap: MSE (m²)"] = plus_minus(row["gap_mse"], row["gap_mse_ci95"], 3)
         numbers.append(row)
         display.append(shown)
@@ -147,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             "A on A = runs trained under A alone, flown under A; A on B = the same policies flown under B; B on B = "
             "runs trained under B alone, flown under B (every cell re-flown by sweep.reevaluate on starts of its own "
             "seed, not those the kept policy was chosen on). Success rate and position MSE (summed over axes), seed mean ± 95% Student-t "
-            "CI, per seed in parentheses (seed order); gap = A on A − A on B, paired by seed, 95% Student-t CI.\n\n" + markdown(display))
+            "CI, per seed in parentheses (seed order); gap = A on A − A on B, paired by seed, 95% Student-t CI, over all "
+            f"seeds and over the seeds whose policy hovers under A (success ≥ {HOVERS:.0%}).\n\n" + markdown(display))
     (args.out / "transfer_gap.md").write_text(text + "\n")
     print(text)
     return 0
