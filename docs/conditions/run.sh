@@ -2,8 +2,10 @@
 # The transfer-gap table of docs/conditions.md (issue 33 §2), phase by phase. train resumes (resume=auto); reevaluate
 # flies every cell again when re-run (the scores logged anew at the same step, the newest read).
 #
-#   docs/conditions/run.sh train        # PPO (JAX, 16 x 128, 5M steps, 4 seeds) under each condition alone
-#   docs/conditions/run.sh reevaluate   # every run's kept policies flown under each condition of its family
+#   docs/conditions/run.sh train        # PPO (JAX, 16 x 128, 5M steps, seeds 0-3; SEEDS=4,5,6,7 for more) under
+#                                       # each condition alone
+#   docs/conditions/run.sh reevaluate   # every run's kept policy flown under each condition of its family (the wind
+#                                       # family and the still-air vehicles: reevaluate-wind, reevaluate-still)
 #   docs/conditions/run.sh table        # docs/conditions/transfer_gap.md/.csv
 #
 # Conditions (arms: the wind tag, +vehicle where not nominal): x3 (3 m/s +x), x1p5 (1.5 m/s +x), mx3 (3 m/s -x),
@@ -23,13 +25,13 @@ CODE=$STUDY/code-$(git -C "$ROOT" rev-parse --short "$COMMIT")
 sweep() {  # sweep NAME OVERRIDES...
   local name=$1; shift
   (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep -m experiment=transfer train.checkpoint_dir="$STUDY/ckpt" \
-     hydra.sweep.dir="$STUDY/multirun/$name" "$@")
+     hydra.sweep.dir="$STUDY/multirun/$name" ${SEEDS:+"seed=$SEEDS"} "$@")
 }
-fly() {  # fly TRAINED_WHERE... -- NAME OVERRIDES...: the runs' policies under another condition (start seed 7)
+fly() {  # fly TRAINED_WHERE... -- NAME OVERRIDES...: the runs' kept policy (best_eval) under a condition (start seed 7)
   local where=() ; while [ "$1" != "--" ]; do where+=(--where "$1"); shift; done; shift
   local name=$1; shift
   (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.reevaluate --experiment transfer "${where[@]}" --name "$name" \
-     eval.condition=fixed eval.seed=7 eval.episodes=20 "$@")
+     --policy best_eval eval.condition=fixed eval.seed=7 eval.episodes=20 "$@")
 }
 WIND_ARMS=(x3 x1p5 mx3 y3)
 declare -A WIND=([x3]="3.0 [1.0,0.0,0.0]" [x1p5]="1.5 [1.0,0.0,0.0]" [mx3]="3.0 [-1.0,0.0,0.0]" [y3]="3.0 [0.0,1.0,0.0]")
@@ -46,13 +48,15 @@ case ${1:-} in
       read -r mass eff <<<"${STILL[$vehicle]}"
       sweep "none-$vehicle" wind=none vehicle.name="$vehicle" "vehicle.segments=[{mass:$mass,rotor_efficiency:$eff}]"
     done ;;
-  reevaluate)
+  reevaluate) "$0" reevaluate-wind && "$0" reevaluate-still ;;
+  reevaluate-wind)
     for trained in "${WIND_ARMS[@]}"; do
       for target in "${WIND_ARMS[@]}"; do
         read -r speed dir <<<"${WIND[$target]}"
         fly wind="$trained" -- "on_$target" eval.wind_speed="$speed" "eval.direction=$dir"
       done
-    done
+    done ;;
+  reevaluate-still)
     for trained in nominal mass1p5 motor0p7; do
       for target in nominal mass1p5 motor0p7; do
         read -r mass eff <<<"${STILL[$target]}"
@@ -64,5 +68,5 @@ case ${1:-} in
     (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.report.transfer --experiment transfer --out "$ROOT/docs/conditions" \
        --change "paper speed 3 -> 1.5 m/s=x3:x1p5" --change "flip +x -> -x=x3:mx3" --change "rotate +x -> +y=x3:y3" \
        --change "payload x1.0 -> x1.5=none:none+mass1p5" --change "motor 1 at 100% -> 70%=none:none+motor0p7") ;;
-  *) echo "usage: $0 train|reevaluate|table" >&2; exit 2 ;;
+  *) echo "usage: $0 train|reevaluate|reevaluate-wind|reevaluate-still|table" >&2; exit 2 ;;
 esac
