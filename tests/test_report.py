@@ -1374,7 +1374,7 @@ def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):
     got = pd.read_csv(tmp_path / "out" / "transfer_gap.csv").iloc[0]
     assert (got["A_on_A_success"], got["A_on_B_success"], got["B_on_B_success"]) == pytest.approx((0.9, 0.1, 0.9))
     assert got["gap_success"] == pytest.approx(0.8) and got["gap_success_ci95"] == pytest.approx(0.0, abs=1e-12)
-    assert got["A_on_A_mse"] == pytest.approx(0.3 + 0.1) and got["gap_mse"] == pytest.approx(-0.8)
+    assert got["A_on_A_mse"] == pytest.approx(0.3 + 0.1) and got["gap_mse"] == pytest.approx(0.8)   # worse under B
     assert got["gap_hovering_success"] == pytest.approx(0.8) and got["gap_hovering_n"] == 2
     shown = md_table(tmp_path / "out" / "transfer_gap.md").iloc[0]
     assert shown["A on B: success (%)"].startswith("10 ± ") and shown["A on B: success (%)"].endswith("(20, 0)") and shown["Gap A on A − A on B: success (pp)"] == "80 ± 0"

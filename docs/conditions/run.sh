@@ -7,6 +7,9 @@
 #   docs/conditions/run.sh reevaluate   # every run's kept policy flown under each condition of its family (the wind
 #                                       # family and the still-air vehicles: reevaluate-wind, reevaluate-still)
 #   docs/conditions/run.sh table        # docs/conditions/transfer_gap.md/.csv
+#   docs/conditions/run.sh import       # the archived runs (docs/conditions/runs, re-evaluations included) -> the
+#                                       # store, so that `table` re-makes the table without training
+#   docs/conditions/run.sh export       # the store's FINISHED runs -> docs/conditions/runs
 #
 # Conditions (arms: the wind tag, +vehicle where not nominal): x3 (3 m/s +x), x1p5 (1.5 m/s +x), mx3 (3 m/s -x),
 # y3 (3 m/s +y); none (still air), none+mass1p5 (x1.5 mass and inertia), none+motor0p7 (rotor 1 at 70% thrust).
@@ -64,9 +67,11 @@ case ${1:-} in
             "eval.rotor_efficiency=$eff"
       done
     done ;;
+  import) (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.archive import "$ROOT/docs/conditions/runs") ;;
+  export) (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.archive export --experiment transfer --out "$ROOT/docs/conditions/runs") ;;
   table)
     (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.report.transfer --experiment transfer --out "$ROOT/docs/conditions" \
        --change "paper speed 3 -> 1.5 m/s=x3:x1p5" --change "flip +x -> -x=x3:mx3" --change "rotate +x -> +y=x3:y3" \
        --change "payload x1.0 -> x1.5=none:none+mass1p5" --change "motor 1 at 100% -> 70%=none:none+motor0p7") ;;
-  *) echo "usage: $0 train|reevaluate|reevaluate-wind|reevaluate-still|table" >&2; exit 2 ;;
+  *) echo "usage: $0 train|reevaluate|reevaluate-wind|reevaluate-still|table|import|export" >&2; exit 2 ;;
 esac

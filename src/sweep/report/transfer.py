@@ -16,8 +16,8 @@ for the three, and none of them on the starts the kept policy was chosen on (the
 
 Per change, for the policy ``--policy`` (``best_eval``, the default: the policy kept at the highest in-training
 eval return, i.e. the one that hovered best under its own condition; or ``final``, ``best``): success rate (%)
-and position MSE (the per-axis MSEs summed, m²), seed mean ± 95% Student-t CI; the gap A on A − A on B, paired by
-seed, with its 95% Student-t CI, over all seeds and over the seeds whose policy hovers under A (success >= 50%:
+and position MSE (the per-axis MSEs summed, m²), seed mean ± 95% Student-t CI; the gap (success A on A − A on B,
+MSE A on B − A on A: positive = worse under B), paired by seed, with its 95% Student-t CI, over all seeds and over the seeds whose policy hovers under A (success >= 50%:
 a seed that never learned the hover has no gap to show). Written to ``<out>/transfer_gap.md`` and ``.csv``.
 """
 from __future__ import annotations
@@ -94,8 +94,8 @@ def gap_table(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str
                 + f" ({per_seed})"
             shown[f"{cell}: MSE (m²)"] = plus_minus(row[f"{key}_mse"], row[f"{key}_mse_ci95"], 3)
         paired = cells["A on A"].merge(cells["A on B"], on="seed", suffixes=("_aa", "_ab"))
-        for measure in ("success", "mse"):
-            mean, half, n = stats.mean_t_ci(paired[f"{measure}_aa"] - paired[f"{measure}_ab"])
+        for measure, sign in (("success", 1.0), ("mse", -1.0)):   # a gap: success lost, MSE gained under B
+            mean, half, n = stats.mean_t_ci(sign * (paired[f"{measure}_aa"] - paired[f"{measure}_ab"]))
             row.update({f"gap_{measure}": mean, f"gap_{measure}_ci95": half, "gap_n": n})
         hovering = paired[paired["success_aa"] >= HOVERS]   # the seeds whose policy hovers under A
         mean, half, n = stats.mean_t_ci(hovering["success_aa"] - hovering["success_ab"])
@@ -103,7 +103,7 @@ def gap_table(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str
         shown["Gap A on A − A on B: success (pp)"] = plus_minus(100 * row["gap_success"], 100 * row["gap_success_ci95"], 0)
         shown[f"Gap, seeds hovering under A (≥ {HOVERS:.0%}): success (pp)"] = (
             plus_minus(100 * mean, 100 * half, 0) + f" (n={n})" if n else "–")
-        shown["Gap: MSE (m²)"] = plus_minus(row["gap_mse"], row["gap_mse_ci95"], 3)
+        shown["Gap: MSE A on B − A on A (m²)"] = plus_minus(row["gap_mse"], row["gap_mse_ci95"], 3)
         numbers.append(row)
         display.append(shown)
     return pd.DataFrame(numbers), pd.DataFrame(display)
@@ -154,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             "A on A = runs trained under A alone, flown under A; A on B = the same policies flown under B; B on B = "
             "runs trained under B alone, flown under B (every cell re-flown by sweep.reevaluate on starts of its own "
             "seed, not those the kept policy was chosen on). Success rate and position MSE (summed over axes), seed mean ± 95% Student-t "
-            "CI, per seed in parentheses (seed order); gap = A on A − A on B, paired by seed, 95% Student-t CI, over all "
+            "CI, per seed in parentheses (seed order); gap = success A on A − A on B and MSE A on B − A on A (positive: worse "
+            "under B), paired by seed, 95% Student-t CI, over all "
             f"seeds and over the seeds whose policy hovers under A (success ≥ {HOVERS:.0%}).\n\n" + markdown(display))
     (args.out / "transfer_gap.md").write_text(text + "\n")
     print(text)
