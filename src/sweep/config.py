@@ -478,7 +478,7 @@ def _vehicle_rules(c: DictConfig) -> None:
     params = crazyflie_params(c.env.motor_time_constant)
     flown = [(f"vehicle.segments[{i}]", s) for i, s in enumerate(c.vehicle.segments)] + [("eval", c.eval)]
     for where, s in flown:
-        segment = VehicleSegment(float(s.mass), tuple(float(e) for e in s.rotor_efficiency))
+        segment = VehicleSegment.of(s)
         ratio = thrust_to_weight(params, segment)
         if ratio <= 1.0:
             raise ConfigError(f"{where}: mass={segment.mass:g}, rotor_efficiency={list(segment.rotor_efficiency)}: "

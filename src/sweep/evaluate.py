@@ -29,7 +29,7 @@ from omegaconf import DictConfig
 from sweep import metrics
 from sweep.cadence import Cadence
 from sweep.envs import HoverVecEnv, WindSchedule
-from sweep.envs.factory import make_env, vehicle_schedule, vehicle_segment, wind_schedule
+from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.envs.hover import condition_at
 from sweep.envs.vehicle import NOMINAL, VehicleSchedule, VehicleSegment
 from sweep.training.hooks import Hook
@@ -110,7 +110,7 @@ def flight_conditions(eval_cfg: DictConfig, wind_cfg: DictConfig | None = None, 
     mode = eval_cfg.get("condition", "fixed")
     if mode == "fixed":
         wind = WindSchedule.constant(eval_cfg.wind_speed, list(eval_cfg.direction)).velocity_at(0)
-        vehicle = vehicle_segment(eval_cfg) if "mass" in eval_cfg else NOMINAL
+        vehicle = VehicleSegment.of(eval_cfg)   # runs stored before eval.mass: RotorPy's vehicle
         return [FlightCondition("fixed", tuple(float(c) for c in wind), vehicle)]
     wind_s = wind_schedule(wind_cfg) if wind_cfg is not None else WindSchedule()
     vehicle_s = vehicle_schedule(vehicle_cfg) if vehicle_cfg is not None else VehicleSchedule()

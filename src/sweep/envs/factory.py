@@ -34,13 +34,8 @@ def wind_schedule(wind_cfg: DictConfig) -> WindSchedule:
                         directions=None if directions is None else [list(d) for d in directions])
 
 
-def vehicle_segment(segment_cfg) -> VehicleSegment:
-    """One ``vehicle.segments`` entry (or an ``eval`` block with ``mass`` and ``rotor_efficiency``)."""
-    return VehicleSegment(mass=float(segment_cfg.mass), rotor_efficiency=tuple(float(e) for e in segment_cfg.rotor_efficiency))
-
-
 def vehicle_schedule(vehicle_cfg: DictConfig) -> VehicleSchedule:
     """The training vehicle of a ``vehicle`` config (conf/vehicle/*.yaml)."""
-    return VehicleSchedule(segments=[vehicle_segment(s) for s in vehicle_cfg.segments],
+    return VehicleSchedule(segments=[VehicleSegment.of(s) for s in vehicle_cfg.segments],
                            segment_steps=vehicle_cfg.segment_steps, after_list=vehicle_cfg.after_list,
                            name=vehicle_cfg.name)

@@ -43,8 +43,7 @@ class CrazyflieHoverEnv(gymnasium.Env):
         wind = WindSchedule(speeds=list(wind_speeds), segment_steps=segment_steps, direction=list(wind_direction),
                             directions=None if wind_directions is None else [list(d) for d in wind_directions],
                             after_list=after_list, name="gym")
-        segments = [VehicleSegment(float(s.get("mass", 1.0)), tuple(float(e) for e in s.get("rotor_efficiency", (1.0,) * 4)))
-                    for s in vehicle_segments]
+        segments = [VehicleSegment.of(s) for s in vehicle_segments]
         vehicle = VehicleSchedule(segments, segment_steps=vehicle_segment_steps or segment_steps, after_list=after_list,
                                   name="gym")
         self._vec = HoverVecEnv(n_envs=1, backend=get_class(BACKENDS[backend]), wind=wind, vehicle=vehicle,

@@ -50,6 +50,12 @@ class VehicleSegment:
         if len(self.rotor_efficiency) != 4 or not all(0 < e <= 1 for e in self.rotor_efficiency):
             raise ValueError(f"rotor_efficiency {list(self.rotor_efficiency)!r}: must be 4 numbers in (0, 1]")
 
+    @classmethod
+    def of(cls, block) -> "VehicleSegment":
+        """From a mapping with ``mass`` and ``rotor_efficiency`` (a ``vehicle.segments`` entry, an ``eval`` block,
+        a Gymnasium keyword), either left out meaning RotorPy's value."""
+        return cls(float(block.get("mass", 1.0)), tuple(float(e) for e in block.get("rotor_efficiency", (1.0,) * 4)))
+
     @property
     def nominal(self) -> bool:
         return self.mass == 1.0 and all(e == 1.0 for e in self.rotor_efficiency)
@@ -83,9 +89,7 @@ class VehicleSchedule:
     _distinct: int = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.segments = [s if isinstance(s, VehicleSegment) else
-                         VehicleSegment(float(s["mass"]), tuple(float(e) for e in s["rotor_efficiency"]))
-                         for s in self.segments]
+        self.segments = [s if isinstance(s, VehicleSegment) else VehicleSegment.of(s) for s in self.segments]
         self._distinct = len(set(self.segments))
 
     @property
