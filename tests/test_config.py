@@ -229,8 +229,8 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "d2c26e1047a2fd70"   # conditions (issue 33): the vehicle group, wind.directions, eval.condition/mass/rotor_efficiency,
-                                # the evaluation hook's schedules; checkpoint format 3
+JOB_KEY = "051028e227272094"   # conditions (issue 33): the vehicle group, wind.directions, eval.condition/mass/rotor_efficiency,
+                                # the evaluation hook's schedules; checkpoint format 3; wind.gusts/gust_altitude, eval.gust
 
 
 def test_the_resume_key_changes_only_with_the_settings():

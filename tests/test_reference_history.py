@@ -85,7 +85,7 @@ def history_in_fresh_process(name: str, tmp: Path) -> dict[str, list[list[float]
 
 # the condition's env/* metrics beyond env/wind_speed (Condition.metrics), added after the references were written
 CONDITION_KEYS = set(Condition(0, (3.0, 0.0, 0.0)).metrics()) - {"env/wind_speed"}
-NOMINAL_CONDITION = {"env/mass_factor": 1.0, "env/wind_y": 0.0, "env/wind_z": 0.0,
+NOMINAL_CONDITION = {"env/gust_sigma": 0.0, "env/mass_factor": 1.0, "env/wind_y": 0.0, "env/wind_z": 0.0,
                      **{f"env/rotor_efficiency_{i}": 1.0 for i in range(1, 5)}}
 
 

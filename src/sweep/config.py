@@ -174,6 +174,7 @@ class Eval:
     condition: EvalCondition = MISSING
     wind_speed: float = non_negative(" (m/s)")
     direction: List[float] = vector3()
+    gust: float = non_negative(" (Dryden sigma, RotorPy's sig_wind)")
     mass: float = key(lambda v: _finite(v) and v > 0, "a number > 0 (factor on RotorPy's mass and inertia)")
     rotor_efficiency: List[float] = key(lambda v: _efficiencies_ok(v), "4 numbers in (0, 1] (each rotor's share of its thrust)")
     seed: int = at_least(0)
@@ -207,6 +208,9 @@ class Wind:
     direction: List[float] = vector3()
     directions: Optional[List[List[float]]] = key(lambda v: v is None or (len(v) > 0 and all(map(_vector3_ok, v))),
                                                   "null or a list of non-zero 3-vectors [x, y, z], one per speed")
+    gusts: Optional[List[float]] = key(lambda v: v is None or (len(v) > 0 and all(_finite(g) and g >= 0 for g in v)),
+                                       "null or a list of Dryden sigmas >= 0 (RotorPy's sig_wind), one per speed")
+    gust_altitude: float = positive(" (m)")
 
 
 @dataclass
@@ -494,6 +498,12 @@ def _cross_rules(c: DictConfig) -> None:
     if c.wind.directions is not None and len(c.wind.directions) != len(c.wind.speeds):
         raise ConfigError(f"wind.directions: {len(c.wind.directions)} directions for {len(c.wind.speeds)} speeds: must "
                           "be one per speed (or null: wind.direction for every speed)")
+    if c.wind.gusts is not None and len(c.wind.gusts) != len(c.wind.speeds):
+        raise ConfigError(f"wind.gusts: {len(c.wind.gusts)} sigmas for {len(c.wind.speeds)} speeds: must be one per "
+                          "speed (or null: no turbulence)")
+    if (any(g > 0 for g in c.wind.gusts or []) or c.eval.gust > 0) and c.env.sim_rate < 20:
+        raise ConfigError(f"env.sim_rate={c.env.sim_rate:g} with Dryden gusts: must be >= 20 Hz (RotorPy's filter "
+                          "sub-steps above 0.05 s, which is not reproduced)")
     _vehicle_rules(c)
     if c.env.backend not in c.env.backends:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")

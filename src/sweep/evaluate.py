@@ -4,8 +4,8 @@
 start box drawn from ``eval.seed`` (the same starts for every agent and seed), the training episode length
 (T = 500 steps), under the condition(s) ``eval.condition`` names (``flight_conditions``):
 
-* ``fixed`` (the paper's): constant wind ``wind_speed`` along ``direction``, the vehicle ``eval.mass`` /
-  ``eval.rotor_efficiency``;
+* ``fixed`` (the paper's): constant wind ``wind_speed`` along ``direction`` with Dryden gusts of sigma
+  ``eval.gust`` (0: none), the vehicle ``eval.mass`` / ``eval.rotor_efficiency``;
 * ``current``: the training schedules' condition at the policy's last training step (during training: the one in
   force; at the end: the last segment's);
 * ``all``: every distinct condition the training schedules reach in ``train.total_timesteps``, in order of first
@@ -96,11 +96,13 @@ def flight_metrics(positions: np.ndarray, crashed: bool, radius: float, hold_ste
 
 @dataclass(frozen=True)
 class FlightCondition:
-    """What an evaluation flies under: a constant wind (world frame, m/s) and a vehicle."""
+    """What an evaluation flies under: a constant mean wind (world frame, m/s), its gusts, and a vehicle."""
     name: str
     wind: tuple[float, float, float]
     vehicle: VehicleSegment = NOMINAL
     segment: int = -1   # the training clock's segment it was in force at (-1: fixed)
+    gust: float = 0.0   # Dryden sigma (sweep.envs.gusts; 0: none)
+    gust_altitude: float = 2.0
 
 
 def flight_conditions(eval_cfg: DictConfig, wind_cfg: DictConfig | None = None, vehicle_cfg: DictConfig | None = None,
@@ -108,23 +110,27 @@ def flight_conditions(eval_cfg: DictConfig, wind_cfg: DictConfig | None = None, 
     """The conditions ``eval.condition`` names (module docstring) for a policy trained ``timesteps`` steps of a
     run of ``total_timesteps`` under the ``wind`` / ``vehicle`` configs (None: a constant still wind / nominal)."""
     mode = eval_cfg.get("condition", "fixed")
+    wind_s = wind_schedule(wind_cfg) if wind_cfg is not None else WindSchedule()
+    altitude = wind_s.gust_altitude
     if mode == "fixed":
         wind = WindSchedule.constant(eval_cfg.wind_speed, list(eval_cfg.direction)).velocity_at(0)
         vehicle = VehicleSegment.of(eval_cfg)   # runs stored before eval.mass: RotorPy's vehicle
-        return [FlightCondition("fixed", tuple(float(c) for c in wind), vehicle)]
-    wind_s = wind_schedule(wind_cfg) if wind_cfg is not None else WindSchedule()
+        return [FlightCondition("fixed", tuple(float(c) for c in wind), vehicle, gust=float(eval_cfg.get("gust", 0.0)),
+                                gust_altitude=altitude)]
     vehicle_s = vehicle_schedule(vehicle_cfg) if vehicle_cfg is not None else VehicleSchedule()
     if mode == "current":
         c = condition_at(wind_s, vehicle_s, max(int(timesteps) - 1, 0))
-        return [FlightCondition("current", c.wind, VehicleSegment(c.mass, c.rotor_efficiency), c.segment)]
+        return [FlightCondition("current", c.wind, VehicleSegment(c.mass, c.rotor_efficiency), c.segment, c.gust,
+                                altitude)]
     starts = sorted({0} | {k * s for s in (wind_s.segment_steps, vehicle_s.segment_steps)
                            for k in range(1, -(-int(total_timesteps) // s))})
     seen: dict[tuple, FlightCondition] = {}
     for g in starts:
         c = condition_at(wind_s, vehicle_s, g)
-        key = (c.wind, c.mass, c.rotor_efficiency)
+        key = (c.wind, c.gust, c.mass, c.rotor_efficiency)
         if key not in seen:
-            seen[key] = FlightCondition(f"c{len(seen)}", c.wind, VehicleSegment(c.mass, c.rotor_efficiency), c.segment)
+            seen[key] = FlightCondition(f"c{len(seen)}", c.wind, VehicleSegment(c.mass, c.rotor_efficiency), c.segment,
+                                        c.gust, altitude)
     return list(seen.values())
 
 
@@ -151,7 +157,7 @@ def fly_protocol(policy, eval_cfg: DictConfig, env_cfg: DictConfig, condition: F
                  ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """The protocol under one condition: (the EVAL_FIELDS values, the flights)."""
     ev = eval_cfg
-    wind = WindSchedule.steady(condition.wind)
+    wind = WindSchedule.steady(condition.wind, condition.gust, condition.gust_altitude)
     env = make_env(env_cfg, ev.episodes, wind, ev.seed, vehicle=VehicleSchedule(segments=[condition.vehicle]))
     flights = fly(policy, env)
     hold_steps = int(round(ev.success_hold_s * env_cfg.sim_rate))
@@ -163,7 +169,7 @@ def fly_protocol(policy, eval_cfg: DictConfig, env_cfg: DictConfig, condition: F
               "crash_rate": float(flights["crashed"].mean())}
     trajectories = {**flights, "success": np.array([f["success"] > 0 for f in per_flight]),
                     "mse": np.array([[f["mse_x"], f["mse_y"], f["mse_z"]] for f in per_flight]),
-                    "dt": np.array(env.dt), "wind": wind.velocity_at(0), "mass": np.array(condition.vehicle.mass),
+                    "dt": np.array(env.dt), "wind": wind.velocity_at(0), "gust": np.array(condition.gust), "mass": np.array(condition.vehicle.mass),
                     "rotor_efficiency": np.array(condition.vehicle.rotor_efficiency)}
     return {f.name: values[f.name] for f in metrics.EVAL_FIELDS}, trajectories
 

@@ -49,8 +49,8 @@ from sweep.tracking import add_to_finished_run, download_artifacts, finished_run
 CONFIG = "config.yaml"
 MODELS = {policy: "model.zip" if policy == "final" else f"model_{policy}.zip" for policy in metrics.POLICIES}
 # The eval keys a flight depends on; eval.policy and eval.every_timesteps say what training kept and when it flew.
-FLIGHT_KEYS = ("condition", "wind_speed", "direction", "mass", "rotor_efficiency", "episodes", "seed", "success_radius",
-               "success_hold_s")
+FLIGHT_KEYS = ("condition", "wind_speed", "direction", "gust", "mass", "rotor_efficiency", "episodes", "seed",
+               "success_radius", "success_hold_s")
 
 
 @dataclass
@@ -67,7 +67,7 @@ class StoredRun:
 
 
 # eval keys added with eval.condition (issue 33): what a run stored before them flew under
-EVAL_BEFORE_CONDITIONS = {"condition": "fixed", "mass": 1.0, "rotor_efficiency": [1.0, 1.0, 1.0, 1.0]}
+EVAL_BEFORE_CONDITIONS = {"condition": "fixed", "gust": 0.0, "mass": 1.0, "rotor_efficiency": [1.0, 1.0, 1.0, 1.0]}
 
 
 def parse_overrides(items: list[str]) -> DictConfig:

@@ -273,7 +273,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         episode_starts = np.array(self._last_episode_starts, dtype=np.float32)
         dones = np.zeros(n, dtype=np.bool_)
         noise = self.noise_rng.standard_normal((n_rollout_steps, n, self.action_space.shape[0]), dtype=np.float32)
-        wind = env.wind.velocities(env.global_step + n * np.arange(n_rollout_steps))
+        wind = env.rollout_wind(n_rollout_steps)
         buffer = rollout.Buffer(observations=buf.observations, actions=buf.actions, rewards=buf.rewards,
                                 episode_starts=buf.episode_starts, values=buf.values, log_probs=buf.log_probs)
         t = 0

@@ -33,6 +33,7 @@ import numba
 import numpy as np
 
 from sweep.envs.backends.fast import step_vehicles
+from sweep.envs.gusts import add_gusts
 from sweep.envs.hover import action_to_rotor_speed, task_outcome
 
 LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
@@ -132,14 +133,16 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
     """Steps t, t+1, ... of a rollout until some episode ends or t = n_steps; returns the next t.
 
     ``obs`` (N, D) is the observation before step t and is overwritten with the one after the last step
-    (the terminal one for vehicles whose episode ended: the caller resets them). ``wind`` (n_steps, 3) is
-    the wind of every step of the rollout, ``noise`` (n_steps, N, A) the Gaussian draws. ``policy`` is a
+    (the terminal one for vehicles whose episode ended: the caller resets them). ``wind`` is the env's
+    ``RolloutWind`` of every step of the rollout (mean wind, gusts), ``noise`` (n_steps, N, A) the Gaussian draws. ``policy`` is a
     ``Policy``, ``buffer`` a ``Buffer``, ``kernel`` the env's ``HoverKernel`` (``sweep.envs.hover``)."""
     pi, vf, log_std, relu, layer_norm = policy
     vehicles, physics, outcome = kernel.vehicles, kernel.physics, kernel.outcome
     t_idx, ep_return, reward_scale = kernel.t_idx, kernel.ep_return, kernel.reward_scale
     rewards, terminated, truncated = outcome.rewards, outcome.terminated, outcome.truncated
-    task = kernel.task
+    task, gusts = kernel.task, kernel.gusts
+    mean_wind, gust_sigma, gust_draws = wind
+    turbulent = gust_draws.shape[0] > 0
     buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs = buffer  # read once: see step_vehicles
     n, n_act = obs.shape[0], noise.shape[2]
     width = widest(widest(obs.shape[1], pi), vf)
@@ -174,7 +177,9 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
             for k in range(obs.shape[1]):
                 buf_obs[t, i, k] = obs[i, k]
             for k in range(3):
-                wind_now[i, k] = wind[t, k]
+                wind_now[i, k] = mean_wind[t, k]
+        if turbulent:
+            add_gusts(gusts, gust_draws[t], gust_sigma[t], wind_now)
         step_vehicles(vehicles, cmd, wind_now, physics)
         task_outcome(vehicles, clipped, t_idx, task, obs, outcome)
         any_done = False

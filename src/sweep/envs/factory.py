@@ -31,7 +31,9 @@ def wind_schedule(wind_cfg: DictConfig) -> WindSchedule:
     directions = wind_cfg.get("directions")
     return WindSchedule(speeds=list(wind_cfg.speeds), segment_steps=wind_cfg.segment_steps,
                         after_list=wind_cfg.after_list, direction=list(wind_cfg.direction), name=wind_cfg.name,
-                        directions=None if directions is None else [list(d) for d in directions])
+                        directions=None if directions is None else [list(d) for d in directions],
+                        gusts=None if wind_cfg.get("gusts") is None else list(wind_cfg.gusts),
+                        gust_altitude=wind_cfg.get("gust_altitude", 2.0))
 
 
 def vehicle_schedule(vehicle_cfg: DictConfig) -> VehicleSchedule:

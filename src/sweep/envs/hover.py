@@ -19,7 +19,9 @@
 * Conditions: the wind (world-frame air velocity, ``WindSchedule``) and the vehicle (mass factor, rotor
   efficiencies, ``VehicleSchedule``) in force at the global timestep (steps x N); neither is observed.
   ``sync_condition`` brings the wind array and the backend's vehicle to the current step's segments; a change
-  of either schedule's segment rebuilds them (the wind's direction, not only its speed).
+  of either schedule's segment rebuilds them (the wind's direction, not only its speed). Under a turbulent wind
+  (``WindSchedule.gusts``) each vehicle also gets its own Dryden gust each step (``sweep.envs.gusts``), scaled by
+  the segment's sigma, its draws from the env's seed on their own stream.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sweep.envs.backends.base import Backend, Vehicles
 from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
+from sweep.envs.gusts import Gusts, add_gusts, gust_rng, new_gusts
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.schedule import next_boundary
 from sweep.envs.vehicle import NOMINAL, VehicleSchedule, crazyflie_params, hover_rotor_speed
@@ -95,6 +98,15 @@ class HoverKernel(NamedTuple):
     ep_return: np.ndarray  # (N,) float64: return of each episode so far, task units
     reward_scale: float    # the learner gets the reward times this
     outcome: Outcome
+    gusts: Gusts           # the vehicles' gust processes (at rest and unused when the wind has no gusts)
+
+
+class RolloutWind(NamedTuple):
+    """The wind of the next T vector steps (``HoverVecEnv.rollout_wind``): the mean wind (T, 3), the gusts' sigma
+    (T,) and their uniform draws (T, N, 3) ((0, N, 3) when the wind has no gusts)."""
+    mean: np.ndarray
+    gust_sigma: np.ndarray
+    gust_draws: np.ndarray
 
 
 @numba.njit(cache=True)
@@ -147,7 +159,8 @@ def condition_at(wind: WindSchedule, vehicle: VehicleSchedule, global_step: int)
     segment = vehicle.at(global_step)
     return Condition(segment=segment_count(wind, vehicle, global_step),
                      wind=tuple(float(c) for c in wind.velocity_at(global_step)),
-                     mass=segment.mass, rotor_efficiency=tuple(segment.rotor_efficiency))
+                     mass=segment.mass, rotor_efficiency=tuple(segment.rotor_efficiency),
+                     gust=wind.gust_at(global_step))
 
 
 class HoverVecEnv(VecEnv):
@@ -200,7 +213,12 @@ class HoverVecEnv(VecEnv):
         self._actions = np.zeros((n_envs, 4), dtype=np.float32)
         self._rng = np.random.default_rng(seed)
         self._segments: tuple[int, int] | None = None  # (wind, vehicle) segment indices the arrays were built for
-        self._wind_array = np.zeros((n_envs, 3))
+        self._wind_array = np.zeros((n_envs, 3))  # the mean wind of the current segments
+        self._wind_now = np.zeros((n_envs, 3))    # with this step's gusts
+        self._gust_sigma = 0.0
+        self._gusts = new_gusts(n_envs, self.dt, self.wind.gust_altitude) if self.wind.turbulent else \
+            Gusts(state=np.zeros((n_envs, 3, 4)), coef=np.zeros((3, 6)))
+        self._gust_rng = gust_rng(seed)
         # outputs of task_outcome, reused every step
         self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
         self._rewards = np.zeros(n_envs, dtype=np.float32)
@@ -222,7 +240,8 @@ class HoverVecEnv(VecEnv):
         if not hasattr(s, "physics"):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
         return HoverKernel(vehicles=s.vehicles, physics=s.physics, task=self._task, t_idx=self.t_idx,
-                           ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome)
+                           ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome,
+                           gusts=self._gusts)
 
     # ---- task pieces -------------------------------------------------------------------------
     def sync_condition(self) -> None:
@@ -238,6 +257,18 @@ class HoverVecEnv(VecEnv):
                 self.sim.set_vehicle(vehicle)
         self._segments = segments
         self._wind_array = np.ascontiguousarray(np.tile(self.wind.velocity_at(g), (self.num_envs, 1)))
+        self._gust_sigma = self.wind.gust_at(g)
+
+    def rollout_wind(self, n_steps: int) -> RolloutWind:
+        """The wind of the next ``n_steps`` vector steps from the current global step, for a compiled loop that steps
+        the backend itself; the gusts' draws are taken now, as ``step`` would take them one step at a time."""
+        steps = self.global_step + self.num_envs * np.arange(n_steps)
+        turbulent = self.wind.turbulent
+        return RolloutWind(mean=self.wind.velocities(steps), gust_sigma=self.wind.gust_sigmas(steps),
+                           gust_draws=self._gust_draws(n_steps) if turbulent else np.zeros((0, self.num_envs, 3)))
+
+    def _gust_draws(self, n_steps: int) -> np.ndarray:
+        return self._gust_rng.uniform(-1.0, 1.0, (n_steps, self.num_envs, 3))
 
     def steps_to_vehicle_change(self) -> int | None:
         """Vector steps from now until the vehicle schedule's next segment boundary (None: the vehicle never
@@ -279,7 +310,8 @@ class HoverVecEnv(VecEnv):
     def get_state(self) -> dict[str, Any]:
         """Everything needed to continue exactly where this env is (vehicles, clocks, RNG)."""
         return {"sim": self.sim.get_state(), "global_step": self.global_step, "t_idx": self.t_idx.copy(),
-                "ep_return": self.ep_return.copy(), "rng": self._rng.bit_generator.state}
+                "ep_return": self.ep_return.copy(), "rng": self._rng.bit_generator.state,
+                "gusts": self._gusts.state.copy(), "gust_rng": self._gust_rng.bit_generator.state}
 
     def set_state(self, state: dict[str, Any]) -> None:
         self.sim.set_state(state["sim"])
@@ -287,6 +319,9 @@ class HoverVecEnv(VecEnv):
         self.t_idx[...] = state["t_idx"]
         self.ep_return[...] = state["ep_return"]
         self._rng.bit_generator.state = state["rng"]
+        if "gusts" in state:  # checkpoints before the gusts have none (their winds had none)
+            self._gusts.state[...] = state["gusts"]
+            self._gust_rng.bit_generator.state = state["gust_rng"]
         self._segments = None
         self.sim.set_vehicle(NOMINAL)
         self.sync_condition()
@@ -303,7 +338,12 @@ class HoverVecEnv(VecEnv):
         actions = np.clip(self._actions, -1.0, 1.0)
         cmd = action_to_rotor_speed.py_func(actions.astype(np.float64), self.speed_min, self.speed_max)
         self.sync_condition()
-        self.sim.step(cmd, self._wind_array)
+        wind = self._wind_array
+        if self.wind.turbulent:
+            wind = self._wind_now
+            wind[...] = self._wind_array
+            add_gusts(self._gusts, self._gust_draws(1)[0], self._gust_sigma, wind)
+        self.sim.step(cmd, wind)
         self.global_step += self.num_envs
         task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome)
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()
@@ -335,6 +375,8 @@ class HoverVecEnv(VecEnv):
 
     def seed(self, seed: int | None = None) -> Sequence[None | int]:
         self._rng = np.random.default_rng(seed)
+        self._gust_rng = gust_rng(seed)
+        self._gusts.state[...] = 0.0   # the gust processes start afresh with their draws
         return [None if seed is None else seed + i for i in range(self.num_envs)]
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:

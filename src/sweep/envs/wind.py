@@ -6,7 +6,9 @@ The other reading (``after_list=hold``) holds the last speed once the list is us
 reported "after 10 million timesteps", where the two readings part. The wind is indexed by the **global**
 timestep of the run (``sweep.envs.schedule``). Wind is a world-frame air velocity, segment k's speed along
 the unit vector ``direction`` (one for every segment) or ``directions[k]`` (one per segment: ``wind=flip``,
-``wind=rotate``); it acts on the vehicle only through RotorPy's aerodynamic drag.
+``wind=rotate``); it acts on the vehicle only through RotorPy's aerodynamic drag. ``gusts`` (one per speed) adds
+Dryden turbulence of that intensity (RotorPy's ``sig_wind``, the same on each axis; ``sweep.envs.gusts``) on top
+of segment k's mean wind, each vehicle its own gusts.
 """
 from __future__ import annotations
 
@@ -32,6 +34,8 @@ class WindSchedule:
     name: str = "custom"
     after_list: str = "repeat"     # repeat | hold: what follows the last speed of the list
     directions: Sequence[Sequence[float]] | None = None  # one per speed (None: ``direction`` for all)
+    gusts: Sequence[float] | None = None  # Dryden sigma per speed (RotorPy's sig_wind; None: no turbulence)
+    gust_altitude: float = 2.0            # m: the Dryden model's scale lengths
     _vectors: np.ndarray = field(init=False, repr=False)  # (segments, 3) wind velocity of each segment
 
     def __post_init__(self) -> None:
@@ -40,11 +44,27 @@ class WindSchedule:
         if len(dirs) != len(self.speeds):
             raise ValueError(f"wind: {len(dirs)} directions for {len(self.speeds)} speeds")
         self._vectors = np.array([s * _unit(d) for s, d in zip(self.speeds, dirs)]).reshape(len(self.speeds), 3)
+        self.gusts = [0.0] * len(self.speeds) if self.gusts is None else [float(g) for g in self.gusts]
+        if len(self.gusts) != len(self.speeds) or any(not g >= 0 for g in self.gusts):
+            raise ValueError(f"wind: gusts {self.gusts} must be {len(self.speeds)} numbers >= 0, one per speed")
 
     @property
     def varies(self) -> bool:
-        """More than one distinct wind vector in the list."""
-        return len(np.unique(self._vectors, axis=0)) > 1
+        """More than one distinct wind (vector and gust intensity) in the list."""
+        return len(np.unique(np.column_stack([self._vectors, self.gusts]), axis=0)) > 1
+
+    @property
+    def turbulent(self) -> bool:
+        """Some segment has gusts."""
+        return any(g > 0 for g in self.gusts)
+
+    def gust_at(self, global_step: int) -> float:
+        """The Dryden sigma in force at ``global_step`` (0: calm)."""
+        return self.gusts[self.index(global_step)]
+
+    def gust_sigmas(self, global_steps: np.ndarray) -> np.ndarray:
+        """``gust_at`` for many global timesteps at once: (T,) -> (T,)."""
+        return np.asarray(self.gusts, dtype=np.float64)[self.index(np.asarray(global_steps))]
 
     def index(self, global_step):
         """Index of the segment in force at ``global_step`` (an int or an array of them)."""
@@ -67,9 +87,11 @@ class WindSchedule:
         return cls(speeds=[speed], segment_steps=1 << 62, direction=direction, name=f"constant{speed:g}")
 
     @classmethod
-    def steady(cls, velocity: Sequence[float]) -> "WindSchedule":
-        """A constant wind of exactly this world-frame velocity (m/s)."""
+    def steady(cls, velocity: Sequence[float], gust: float = 0.0, gust_altitude: float = 2.0) -> "WindSchedule":
+        """A constant mean wind of exactly this world-frame velocity (m/s), with Dryden gusts of sigma ``gust``."""
         v = np.asarray(velocity, dtype=np.float64).reshape(3)
-        wind = cls.constant(float(np.linalg.norm(v)), v if v.any() else (1.0, 0.0, 0.0))
+        speed = float(np.linalg.norm(v))
+        wind = cls(speeds=[speed], segment_steps=1 << 62, direction=v if v.any() else (1.0, 0.0, 0.0),
+                   name=f"constant{speed:g}", gusts=[gust], gust_altitude=gust_altitude)
         wind._vectors = v.reshape(1, 3).copy()
         return wind

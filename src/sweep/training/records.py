@@ -35,22 +35,25 @@ class Samples(NamedTuple):
 @dataclass(frozen=True)
 class Condition:
     """The condition the vehicles flew under at the end of a rollout: the segment count on the run's clock
-    (``sweep.envs.hover.segment_count``), the wind (world-frame m/s), the vehicle's mass factor and each rotor's
+    (``sweep.envs.hover.segment_count``), the mean wind (world-frame m/s), its gusts' sigma, the vehicle's mass factor and each rotor's
     thrust efficiency (``sweep.envs.vehicle.VehicleSegment``)."""
 
     segment: int
     wind: tuple[float, float, float]
     mass: float = 1.0
     rotor_efficiency: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    gust: float = 0.0  # Dryden sigma of the turbulence on top of the wind (RotorPy's sig_wind; 0: calm)
 
     @property
     def wind_speed(self) -> float:
         return math.sqrt(sum(c * c for c in self.wind))
 
     def metrics(self) -> dict[str, float]:
-        """The condition as ``env/*`` metrics: segment, wind speed and vector, mass factor, rotor efficiencies."""
+        """The condition as ``env/*`` metrics: segment, wind speed and vector, gust sigma, mass factor, rotor
+        efficiencies."""
         out = {"env/segment": float(self.segment), "env/wind_speed": self.wind_speed,
-               **{f"env/wind_{a}": c for a, c in zip("xyz", self.wind)}, "env/mass_factor": self.mass}
+               **{f"env/wind_{a}": c for a, c in zip("xyz", self.wind)}, "env/gust_sigma": self.gust,
+               "env/mass_factor": self.mass}
         out.update({f"env/rotor_efficiency_{i + 1}": e for i, e in enumerate(self.rotor_efficiency)})
         return out
 
