@@ -1376,9 +1376,24 @@ def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):
     assert got["gap_success"] == pytest.approx(0.8) and got["gap_success_ci95"] == pytest.approx(0.0, abs=1e-12)
     assert got["A_on_A_mse"] == pytest.approx(0.3 + 0.1) and got["gap_mse"] == pytest.approx(0.8)   # worse under B
     assert got["gap_hovering_success"] == pytest.approx(0.8) and got["gap_hovering_n"] == 2
+    seeds = transfer.per_seed(transfer.scores(client, exp_id, "best_eval"), [("flip", "x3", "mx3")], "best_eval")
+    assert sorted(seeds[seeds["cell"] == "A on B"]["success"]) == pytest.approx([0.0, 0.2])
+    assert len(seeds) == 6 and (tmp_path / "out" / "transfer_gap.png").stat().st_size > 0
     shown = md_table(tmp_path / "out" / "transfer_gap.md").iloc[0]
     assert shown["A on B: success (%)"].startswith("10 ± ") and shown["A on B: success (%)"].endswith("(20, 0)") and shown["Gap A on A − A on B: success (pp)"] == "80 ± 0"
     capsys.readouterr()
     assert transfer.main(["--experiment", "transfer", "--uri", uri, "--change", "payload=none:none+mass1p5"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no FINISHED run under none, none+mass1p5" in err and "mx3, x3" in err
+
+
+def test_segment_labels_name_what_changes():
+    """The bands' labels: speeds alone as numbers; else the wind's speed and direction, gusts, and the vehicle."""
+    from sweep.report.load import segment_labels
+
+    assert segment_labels([3.0, 2.0], "null", '[{"mass": 1.0, "rotor_efficiency": [1, 1, 1, 1]}]') == [3.0, 2.0]
+    assert segment_labels([3.0, 3.0], "[[1, 0, 0], [-1, 0, 0]]", None) == ["3 +x", "3 −x"]
+    assert segment_labels([0.0], "null", '[{"mass": 1.0, "rotor_efficiency": [1, 1, 1, 1]}, '
+                          '{"mass": 1.3, "rotor_efficiency": [1, 1, 1, 1]}]') == ["nominal", "m×1.3"]
+    assert segment_labels([3.0, 3.0], "null", None, "[0.0, 100.0]") == ["calm", "σ100"]
+    assert segment_labels([3.0], "null", None, "[0.0]") == [3.0]   # no gusts anywhere: as before

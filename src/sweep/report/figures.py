@@ -262,6 +262,50 @@ def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference
     return save(fig, out, f"segment_scores_{wind}")
 
 
+def transfer_gap(seeds: pd.DataFrame, numbers: pd.DataFrame, out: Path) -> list[Path]:
+    """Figure transfer_gap (``sweep.report.transfer``): one panel per change, its three cells side by side (A on A,
+    A on B: the same policies, joined per seed; B on B: fresh networks), each seed a dot, the mean with its 95%
+    Student-t CI in black; the title gives the gap on the seeds that hover under A."""
+    changes = list(numbers["change"])
+    if not changes:
+        return []
+    cols = min(len(changes), 3)
+    rows = -(-len(changes) // cols)
+    fig, axes = plt.subplots(rows, cols, sharey=True, squeeze=False, layout="constrained",
+                             figsize=(style.figure_width(cols), 2.0 * rows + 0.4))
+    cells = ["A on A", "A on B", "B on B"]
+    for ax, row in zip(axes.flat, numbers.itertuples()):
+        sub = seeds[seeds["change"] == row.change]
+        wide = sub.pivot_table(index="seed", columns="cell", values="success")
+        hovers = wide.get("A on A", pd.Series(dtype=float)) >= stats.HOVER
+        for seed, values in wide.iterrows():   # the same policy under A and under B, joined
+            colour = style.PALETTE[0] if hovers.get(seed, False) else style.GREY
+            ax.plot([0, 1], [100 * values.get("A on A", np.nan), 100 * values.get("A on B", np.nan)], color=colour,
+                    lw=0.7, marker="o", ms=2.5, zorder=2)
+        b = sub[sub["cell"] == "B on B"]
+        jitter = np.linspace(-0.12, 0.12, max(len(b), 1))[: len(b)]
+        ax.plot(2 + jitter, 100 * b["success"], color=style.PALETTE[1], lw=0, marker="o", ms=2.5, zorder=2)
+        for x, cell in enumerate(cells):
+            key = cell.replace(" ", "_")
+            mean, half = getattr(row, f"{key}_success"), getattr(row, f"{key}_success_ci95")
+            ax.errorbar(x + 0.25, 100 * mean, yerr=100 * (0.0 if np.isnan(half) else half), color="black",
+                        marker="_", ms=8, lw=0, elinewidth=1.0, capsize=2, zorder=3)
+        ax.set_xticks(range(3), cells, fontsize="x-small")
+        ax.set_xlim(-0.4, 2.6)
+        ax.set_ylim(-5, 105)
+        gap = ("" if row.gap_hovering_n == 0 else
+               f"\ngap {100 * row.gap_hovering_success:.0f} ± {100 * np.nan_to_num(row.gap_hovering_success_ci95):.0f}"
+               f" pp (n={row.gap_hovering_n})")
+        ax.set_title(f"{row.change}\n{row.A} → {row.B}{gap}", fontsize="small")
+    for ax in axes.flat[len(changes):]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("Success (%)")
+    fig.suptitle("Transfer gap: a policy kept under A, flown under B, against a fresh network trained under B\n"
+                 "lines: one seed's policy (coloured: it hovers under A); black: mean, 95% t CI", fontsize="small")
+    return save(fig, out, "transfer_gap")
+
+
 def band_alpha(shown: list[str], conds, highlight: Highlight, wind: str, alpha: float) -> float:
     """A band's opacity: ``alpha`` for up to 3 coloured series in a panel, half of it for more (overlapping bands
     would wash into one colour)."""

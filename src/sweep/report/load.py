@@ -30,6 +30,7 @@ NA = "n/a"  # value of a --by param that does not apply to a run (or that the ru
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "wind.directions": "directions",
+              "wind.gusts": "gusts",
               "vehicle.segments": "vehicle_segments", "train.total_timesteps": "total_timesteps",
               "eval.wind_speed": "eval_wind_speed", "eval.success_radius": "success_radius",
               "eval.policy": "eval_policy", "eval.condition": "eval_condition",  # None in stores logged before it existed (final policy only)
@@ -169,7 +170,7 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
         return df, notes
     df["segment_steps"] = pd.to_numeric(df["segment_steps"], errors="coerce")
     df["speeds"] = df["speeds"].map(lambda s: json.loads(s) if isinstance(s, str) else [])
-    df["segment_labels"] = [segment_labels(r["speeds"], r.get("directions"), r.get("vehicle_segments"))
+    df["segment_labels"] = [segment_labels(r["speeds"], r.get("directions"), r.get("vehicle_segments"), r.get("gusts"))
                             for _, r in df.iterrows()]
     df = df.sort_values(["agent", "wind", "seed", "start_time"])
     dupes = df.duplicated(["agent", *by, "wind", "seed"], keep="last")
@@ -184,13 +185,17 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
 AXES = {(1, 0): "+x", (-1, 0): "−x", (0, 1): "+y", (0, -1): "−y"}
 
 
-def segment_labels(speeds: list[float], directions: str | None, vehicles: str | None) -> list:
+def segment_labels(speeds: list[float], directions: str | None, vehicles: str | None, gusts: str | None = None) -> list:
     """What changes at each of the wind's segments, for the figures' bands: the speeds (m/s) when only the speed
     changes, else one short label per segment of the two lists' common period: the wind (speed and direction,
-    e.g. '3 +x') and the vehicle where not nominal ('m×1.3', 'η1 0.7')."""
+    e.g. '3 +x', its gusts' sigma 'σ100' or 'calm' where other segments have gusts) and the vehicle where not
+    nominal ('m×1.3', 'η1 0.7')."""
     dirs = json.loads(directions) if isinstance(directions, str) and directions not in ("null", "None") else None
     segs = json.loads(vehicles) if isinstance(vehicles, str) else None
-    if dirs is None and (not segs or len(segs) == 1 and segs[0]["mass"] == 1 and set(segs[0]["rotor_efficiency"]) == {1}):
+    sigmas = json.loads(gusts) if isinstance(gusts, str) and gusts not in ("null", "None") else None
+    sigmas = sigmas if sigmas and any(sigmas) else None
+    if dirs is None and sigmas is None and (
+            not segs or len(segs) == 1 and segs[0]["mass"] == 1 and set(segs[0]["rotor_efficiency"]) == {1}):
         return list(speeds)
     segs = segs or [{"mass": 1.0, "rotor_efficiency": [1.0] * 4}]
     labels, wind_changes = [], dirs is not None or len(set(speeds)) > 1
@@ -199,6 +204,9 @@ def segment_labels(speeds: list[float], directions: str | None, vehicles: str | 
         if dirs is not None:
             d = dirs[k % len(dirs)]
             text += " " + AXES.get((int(np.sign(round(d[0], 6))), int(np.sign(round(d[1], 6)))), "") if not d[2] else " ↕"
+        if sigmas is not None:
+            g = sigmas[k % len(sigmas)]
+            text += f" σ{g:g}" if g else " calm"
         seg = segs[k % len(segs)]
         if seg["mass"] != 1:
             text += f" m×{seg['mass']:g}"

@@ -18,7 +18,8 @@ Per change, for the policy ``--policy`` (``best_eval``, the default: the policy 
 eval return, i.e. the one that hovered best under its own condition; or ``final``, ``best``): success rate (%)
 and position MSE (the per-axis MSEs summed, m²), seed mean ± 95% Student-t CI; the gap (success A on A − A on B,
 MSE A on B − A on A: positive = worse under B), paired by seed, with its 95% Student-t CI, over all seeds and over the seeds whose policy hovers under A (success >= 50%:
-a seed that never learned the hover has no gap to show). Written to ``<out>/transfer_gap.md`` and ``.csv``.
+a seed that never learned the hover has no gap to show). Written to ``<out>/transfer_gap.md`` and ``.csv``, and the
+figure ``transfer_gap.png`` (``figures.transfer_gap``: one panel per change, each seed's three cells).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from sweep import metrics
-from sweep.report import load, stats
+from sweep.report import figures, load, stats
 from sweep.report.tables import markdown, plus_minus
 
 FIELDS = ("success_rate", "mse_x", "mse_y", "mse_z")
@@ -73,15 +74,31 @@ def _measures(df: pd.DataFrame, where: str, prefix: str) -> pd.DataFrame:
     return out.dropna()
 
 
+CELLS = ("A on A", "A on B", "B on B")
+
+
+def cells_of(df: pd.DataFrame, a: str, b: str, prefix: str) -> dict[str, pd.DataFrame]:
+    """The three cells of change A -> B: cell -> (seed, success, mse)."""
+    runs_a, runs_b = df[df["arm"] == a], df[df["arm"] == b]
+    return {"A on A": _measures(runs_a, f"{reeval_name(a)}/", prefix),
+            "A on B": _measures(runs_a, f"{reeval_name(b)}/", prefix),
+            "B on B": _measures(runs_b, f"{reeval_name(b)}/", prefix)}
+
+
+def per_seed(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str) -> pd.DataFrame:
+    """One row per change, cell and seed: its success and MSE (what the figure draws)."""
+    prefix = metrics.POLICIES[policy]
+    frames = [m.assign(change=name, cell=cell) for name, a, b in changes
+              for cell, m in cells_of(df, a, b, prefix).items()]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["change", "cell", "seed"])
+
+
 def gap_table(df: pd.DataFrame, changes: list[tuple[str, str, str]], policy: str) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(numbers, display) of the transfer gap of each (name, A, B) in ``changes``."""
     prefix = metrics.POLICIES[policy]
     numbers, display = [], []
     for name, a, b in changes:
-        runs_a, runs_b = df[df["arm"] == a], df[df["arm"] == b]
-        cells = {"A on A": _measures(runs_a, f"{reeval_name(a)}/", prefix),
-                 "A on B": _measures(runs_a, f"{reeval_name(b)}/", prefix),
-                 "B on B": _measures(runs_b, f"{reeval_name(b)}/", prefix)}
+        cells = cells_of(df, a, b, prefix)
         row = {"change": name, "A": a, "B": b}
         shown = {"Change": name, "A → B": f"{a} → {b}"}
         for cell, m in cells.items():
@@ -158,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
             "under B), paired by seed, 95% Student-t CI, over all "
             f"seeds and over the seeds whose policy hovers under A (success ≥ {HOVERS:.0%}).\n\n" + markdown(display))
     (args.out / "transfer_gap.md").write_text(text + "\n")
+    figures.transfer_gap(per_seed(df, changes, args.policy), numbers, args.out)
     print(text)
     return 0
 
