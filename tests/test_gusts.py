@@ -21,10 +21,10 @@ def test_the_gusts_are_rotorpys_dryden_gusts(dt, altitude, sigma):
     want = np.array([rotorpy.update(0.0, None) for _ in range(3000)])
     np.random.seed(11)
     draws = np.random.uniform(-1.0, 1.0, (3000, 3))
-    gusts, got = new_gusts(1, dt, altitude), np.empty((3000, 3))
+    filters, got = new_gusts(1, dt, altitude), np.empty((3000, 3))
     for k in range(3000):
         wind = mean[None].copy()
-        add_gusts(gusts, draws[k][None], sigma, wind)
+        add_gusts(filters, draws[k][None], sigma, wind)
         got[k] = wind[0]
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
     assert np.abs(got - mean).max() > 0.01 * sigma   # not a zero filter
@@ -37,12 +37,25 @@ def test_the_realised_spread_is_far_below_sigma():
     np.testing.assert_allclose(scale_lengths(2.0), [15.41, 15.41, 2.0], atol=0.01)
     std = realised_std(0.01, 2.0)
     np.testing.assert_allclose(std, 0.0326, atol=0.0005)
-    gusts, rng = new_gusts(256, 0.01), np.random.default_rng(0)
+    filters, rng = new_gusts(256, 0.01), np.random.default_rng(0)
     samples = np.zeros((20000, 256, 3))
     for k in range(20000):
-        add_gusts(gusts, rng.uniform(-1.0, 1.0, (256, 3)), 1.0, samples[k])
+        add_gusts(filters, rng.uniform(-1.0, 1.0, (256, 3)), 1.0, samples[k])
     np.testing.assert_allclose(samples[15000:].std(axis=(0, 1)), std, rtol=0.05)
     np.testing.assert_allclose(realised_std(0.002, 2.0), std / np.sqrt(5), rtol=0.01)   # draws not scaled by dt: std ~ sqrt(dt)
+
+
+def test_a_new_env_flies_settled_gusts_from_its_first_step():
+    """An evaluation's env is new: its gusts must have training's spread at once, not start at rest (the x/y filters'
+    time constant, 31 s, is longer than an episode). 2000 vehicles' first-step gusts have the stationary std."""
+    env = HoverVecEnv(n_envs=2000, seed=3, wind=WindSchedule.steady([0.0, 0.0, 0.0], gust=1.0))
+    env.reset()
+    env.step(np.zeros((2000, 4)))
+    np.testing.assert_allclose(env._wind_now.std(axis=0), realised_std(0.01), rtol=0.06)
+    again = HoverVecEnv(n_envs=2000, seed=3, wind=WindSchedule.steady([0.0, 0.0, 0.0], gust=1.0))
+    again.reset()
+    again.step(np.zeros((2000, 4)))
+    np.testing.assert_array_equal(again._wind_now, env._wind_now)   # the same seed, the same gusts
 
 
 def test_a_turbulent_env_gives_each_vehicle_its_own_gusts_and_resumes_them():

@@ -140,7 +140,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
     vehicles, physics, outcome = kernel.vehicles, kernel.physics, kernel.outcome
     t_idx, ep_return, reward_scale = kernel.t_idx, kernel.ep_return, kernel.reward_scale
     rewards, terminated, truncated = outcome.rewards, outcome.terminated, outcome.truncated
-    task, gusts = kernel.task, kernel.gusts
+    task, gust_filters = kernel.task, kernel.gust_filters
     mean_wind, gust_sigma, gust_draws = wind
     turbulent = gust_draws.shape[0] > 0
     buf_obs, buf_actions, buf_rewards, buf_starts, buf_values, buf_log_probs = buffer  # read once: see step_vehicles
@@ -179,7 +179,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
             for k in range(3):
                 wind_now[i, k] = mean_wind[t, k]
         if turbulent:
-            add_gusts(gusts, gust_draws[t], gust_sigma[t], wind_now)
+            add_gusts(gust_filters, gust_draws[t], gust_sigma[t], wind_now)
         step_vehicles(vehicles, cmd, wind_now, physics)
         task_outcome(vehicles, clipped, t_idx, task, obs, outcome)
         any_done = False

@@ -11,8 +11,12 @@ Tustin's rule at the step dt and drives it with one draw of uniform(-1, 1) per s
 realised spread is far below ``sigma`` (its ``sig_wind``) and depends on dt: ``realised_std`` computes it (at
 100 Hz and 2 m, sigma = 1 gives 0.0326 m/s on each axis). The filter here runs with sigma = 1 and
 its output is scaled by the segment's sigma, so a schedule can turn the gusts up and down without restarting
-the process (RotorPy's output for a constant sigma, to rounding: tests/test_gusts.py). The gusts do not depend on
-the vehicle's state, and a process runs over the whole run's clock, across episodes.
+the process (RotorPy's output for a constant sigma, to rounding: tests/test_gusts.py); a change of sigma scales the
+gust at once (0 -> 100: a step of a few m/s). The gusts do not depend on the vehicle's state, and a process runs
+over the whole run's clock, across episodes. RotorPy starts its filter at rest, and its x/y time constant 2 L / V
+is 31 s, longer than an episode: a process started at rest would fly an evaluation (a fresh env) under less than
+half the spread of training. So every process starts *settled*: ``settle`` runs it ``SETTLE_S`` = 150 s on draws
+of its own generator (the variance is within 0.05% of the stationary one after 120 s).
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ import numba
 import numpy as np
 
 GUST_STREAM = 0x67757374  # the gusts' draws: their own stream of the env's seed, so the starts' draws do not move
+SETTLE_S = 150.0          # s of draws a new gust process runs before its first step (``settle``)
 
 
 def scale_lengths(altitude: float) -> np.ndarray:
@@ -45,7 +50,7 @@ def dryden_coefficients(dt: float, altitude: float = 2.0) -> np.ndarray:
     return coef
 
 
-class Gusts(NamedTuple):
+class GustFilters(NamedTuple):
     """The gust processes of N vehicles: ``state`` (N, 3, 4) holds each axis's last two inputs and outputs
     (u_k-1, u_k-2, y_k-1, y_k-2) at sigma = 1; ``coef`` (3, 6) the filter (``dryden_coefficients``)."""
     state: np.ndarray
@@ -53,11 +58,11 @@ class Gusts(NamedTuple):
 
 
 @numba.njit(cache=True)
-def add_gusts(gusts, draws, sigma, wind):
+def add_gusts(filters, draws, sigma, wind):
     """One step of every vehicle's gust filter on ``draws`` (N, 3) of uniform(-1, 1); ``wind`` (N, 3), the mean
     wind, gets ``sigma`` times the gust added in place (RotorPy: y_k = (C4 u_k + C5 u_k-1 + C6 u_k-2 - C2 y_k-1
     - C3 y_k-2) / C1)."""
-    state, coef = gusts.state, gusts.coef
+    state, coef = filters.state, filters.coef
     for i in range(state.shape[0]):
         for a in range(3):
             s, c, u = state[i, a], coef[a], draws[i, a]
@@ -66,12 +71,27 @@ def add_gusts(gusts, draws, sigma, wind):
             wind[i, a] += sigma * y
 
 
-def new_gusts(n: int, dt: float, altitude: float = 2.0) -> Gusts:
-    """N gust processes at rest (RotorPy starts its filter at zero too)."""
+def new_gusts(n: int, dt: float, altitude: float = 2.0) -> GustFilters:
+    """N gust processes at rest (as RotorPy starts its filter; ``settle`` them before use)."""
     if dt > 0.05:
         raise ValueError(f"gusts: step dt={dt:g} s; RotorPy's Dryden filter sub-steps above 0.05 s, which is not "
                          "reproduced here: use env.sim_rate >= 20")
-    return Gusts(state=np.zeros((n, 3, 4)), coef=dryden_coefficients(dt, altitude))
+    return GustFilters(state=np.zeros((n, 3, 4)), coef=dryden_coefficients(dt, altitude))
+
+
+@numba.njit(cache=True)
+def _run(filters, draws):
+    scratch = np.zeros((filters.state.shape[0], 3))
+    for k in range(draws.shape[0]):
+        add_gusts(filters, draws[k], 1.0, scratch)
+
+
+def settle(filters: GustFilters, rng: np.random.Generator, dt: float, seconds: float = SETTLE_S) -> None:
+    """Start the processes afresh and run them ``seconds`` on draws of ``rng``, into their stationary spread."""
+    filters.state[...] = 0.0
+    n = filters.state.shape[0]
+    for _ in range(int(math.ceil(seconds / dt / 1000))):   # 1000 steps at a time: bounded memory for many vehicles
+        _run(filters, rng.uniform(-1.0, 1.0, (1000, n, 3)))
 
 
 def gust_rng(seed: int | None) -> np.random.Generator:
@@ -83,13 +103,13 @@ def realised_std(dt: float, altitude: float = 2.0, seconds: float = 600.0) -> np
     """(3,) stationary standard deviation (m/s) of each axis's gust at sigma = 1: sqrt(Var(u) sum_k h_k^2) over
     the filter's impulse response h (Var of uniform(-1, 1) = 1/3), summed over ``seconds``."""
     steps = int(math.ceil(seconds / dt))
-    gusts = new_gusts(1, dt, altitude)
+    filters = new_gusts(1, dt, altitude)
     draws = np.zeros((steps, 1, 3))
     draws[0] = 1.0
     response = np.zeros((steps, 3))
     out = np.zeros((1, 3))
     for k in range(steps):
         out[:] = 0.0
-        add_gusts(gusts, draws[k], 1.0, out)
+        add_gusts(filters, draws[k], 1.0, out)
         response[k] = out[0]
     return np.sqrt((response ** 2).sum(axis=0) / 3.0)

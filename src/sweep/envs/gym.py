@@ -30,12 +30,13 @@ class CrazyflieHoverEnv(gymnasium.Env):
 
     def __init__(self, wind_speeds: Sequence[float] = (0.0,), wind_direction: Sequence[float] = (1.0, 0.0, 0.0),
                  wind_directions: Sequence[Sequence[float]] | None = None, wind_gusts: Sequence[float] | None = None,
+                 gust_altitude: float = 2.0,
                  vehicle_segments: Sequence[dict[str, Any]] = ({"mass": 1.0},), segment_steps: int = 2_000_000,
                  vehicle_segment_steps: int | None = None, after_list: str = "repeat", backend: str = "fast",
                  reward: dict[str, float] | None = None, **task: Any) -> None:
         """``wind_*`` as ``conf/wind/`` (speeds, one direction or one per speed), ``wind_gusts`` Dryden
-        sigmas, one per speed (RotorPy's ``sig_wind``; None: none), ``vehicle_segments`` as ``conf/vehicle/``
-        (each ``{"mass": f, "rotor_efficiency": [e1, e2, e3, e4]}``, both optional),
+        sigmas, one per speed (RotorPy's ``sig_wind``; None: none) at ``gust_altitude`` m, ``vehicle_segments``
+        as ``conf/vehicle/`` (each ``{"mass": f, "rotor_efficiency": [e1, e2, e3, e4]}``, both optional),
         ``segment_steps`` the wind's (and, unless ``vehicle_segment_steps``, the vehicle's) segment length in
         env steps, ``reward`` the ``env.reward`` weights, ``task`` other ``HoverVecEnv`` arguments
         (``episode_seconds``, ``start_bound``, ``observation``, ...)."""
@@ -43,7 +44,8 @@ class CrazyflieHoverEnv(gymnasium.Env):
             raise ValueError(f"backend={backend!r}: must be one of {'|'.join(BACKENDS)}")
         wind = WindSchedule(speeds=list(wind_speeds), segment_steps=segment_steps, direction=list(wind_direction),
                             directions=None if wind_directions is None else [list(d) for d in wind_directions],
-                            gusts=None if wind_gusts is None else list(wind_gusts), after_list=after_list, name="gym")
+                            gusts=None if wind_gusts is None else list(wind_gusts), gust_altitude=gust_altitude,
+                            after_list=after_list, name="gym")
         segments = [VehicleSegment.of(s) for s in vehicle_segments]
         vehicle = VehicleSchedule(segments, segment_steps=vehicle_segment_steps or segment_steps, after_list=after_list,
                                   name="gym")

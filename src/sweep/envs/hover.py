@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sweep.envs.backends.base import Backend, Vehicles
 from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
-from sweep.envs.gusts import Gusts, add_gusts, gust_rng, new_gusts
+from sweep.envs.gusts import GustFilters, add_gusts, gust_rng, new_gusts, settle
 from sweep.envs.reward import HoverReward, RewardWeights, step_reward
 from sweep.envs.schedule import next_boundary
 from sweep.envs.vehicle import NOMINAL, VehicleSchedule, crazyflie_params, hover_rotor_speed
@@ -98,7 +98,7 @@ class HoverKernel(NamedTuple):
     ep_return: np.ndarray  # (N,) float64: return of each episode so far, task units
     reward_scale: float    # the learner gets the reward times this
     outcome: Outcome
-    gusts: Gusts           # the vehicles' gust processes (at rest and unused when the wind has no gusts)
+    gust_filters: GustFilters  # the vehicles' gust processes (at rest and unused when the wind has no gusts)
 
 
 class RolloutWind(NamedTuple):
@@ -216,9 +216,10 @@ class HoverVecEnv(VecEnv):
         self._wind_array = np.zeros((n_envs, 3))  # the mean wind of the current segments
         self._wind_now = np.zeros((n_envs, 3))    # with this step's gusts
         self._gust_sigma = 0.0
-        self._gusts = new_gusts(n_envs, self.dt, self.wind.gust_altitude) if self.wind.turbulent else \
-            Gusts(state=np.zeros((n_envs, 3, 4)), coef=np.zeros((3, 6)))
+        self._gust_filters = new_gusts(n_envs, self.dt, self.wind.gust_altitude) if self.wind.turbulent else \
+            GustFilters(state=np.zeros((n_envs, 3, 4)), coef=np.zeros((3, 6)))
         self._gust_rng = gust_rng(seed)
+        self._settle_gusts()
         # outputs of task_outcome, reused every step
         self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
         self._rewards = np.zeros(n_envs, dtype=np.float32)
@@ -241,7 +242,7 @@ class HoverVecEnv(VecEnv):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
         return HoverKernel(vehicles=s.vehicles, physics=s.physics, task=self._task, t_idx=self.t_idx,
                            ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome,
-                           gusts=self._gusts)
+                           gust_filters=self._gust_filters)
 
     # ---- task pieces -------------------------------------------------------------------------
     def sync_condition(self) -> None:
@@ -261,11 +262,17 @@ class HoverVecEnv(VecEnv):
 
     def rollout_wind(self, n_steps: int) -> RolloutWind:
         """The wind of the next ``n_steps`` vector steps from the current global step, for a compiled loop that steps
-        the backend itself; the gusts' draws are taken now, as ``step`` would take them one step at a time."""
+        the backend itself; the gusts' draws are taken now, the numbers ``step`` would take one step at a time (a
+        loop that stops before ``n_steps`` has drawn the rest too: as the learner's action noise, it must then not
+        go on stepping this env)."""
         steps = self.global_step + self.num_envs * np.arange(n_steps)
         turbulent = self.wind.turbulent
         return RolloutWind(mean=self.wind.velocities(steps), gust_sigma=self.wind.gust_sigmas(steps),
                            gust_draws=self._gust_draws(n_steps) if turbulent else np.zeros((0, self.num_envs, 3)))
+
+    def _settle_gusts(self) -> None:
+        if self.wind.turbulent:
+            settle(self._gust_filters, self._gust_rng, self.dt)
 
     def _gust_draws(self, n_steps: int) -> np.ndarray:
         return self._gust_rng.uniform(-1.0, 1.0, (n_steps, self.num_envs, 3))
@@ -311,7 +318,7 @@ class HoverVecEnv(VecEnv):
         """Everything needed to continue exactly where this env is (vehicles, clocks, RNG)."""
         return {"sim": self.sim.get_state(), "global_step": self.global_step, "t_idx": self.t_idx.copy(),
                 "ep_return": self.ep_return.copy(), "rng": self._rng.bit_generator.state,
-                "gusts": self._gusts.state.copy(), "gust_rng": self._gust_rng.bit_generator.state}
+                "gusts": self._gust_filters.state.copy(), "gust_rng": self._gust_rng.bit_generator.state}
 
     def set_state(self, state: dict[str, Any]) -> None:
         self.sim.set_state(state["sim"])
@@ -320,7 +327,7 @@ class HoverVecEnv(VecEnv):
         self.ep_return[...] = state["ep_return"]
         self._rng.bit_generator.state = state["rng"]
         if "gusts" in state:  # checkpoints before the gusts have none (their winds had none)
-            self._gusts.state[...] = state["gusts"]
+            self._gust_filters.state[...] = state["gusts"]
             self._gust_rng.bit_generator.state = state["gust_rng"]
         self._segments = None
         self.sim.set_vehicle(NOMINAL)
@@ -342,7 +349,7 @@ class HoverVecEnv(VecEnv):
         if self.wind.turbulent:
             wind = self._wind_now
             wind[...] = self._wind_array
-            add_gusts(self._gusts, self._gust_draws(1)[0], self._gust_sigma, wind)
+            add_gusts(self._gust_filters, self._gust_draws(1)[0], self._gust_sigma, wind)
         self.sim.step(cmd, wind)
         self.global_step += self.num_envs
         task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome)
@@ -376,7 +383,7 @@ class HoverVecEnv(VecEnv):
     def seed(self, seed: int | None = None) -> Sequence[None | int]:
         self._rng = np.random.default_rng(seed)
         self._gust_rng = gust_rng(seed)
-        self._gusts.state[...] = 0.0   # the gust processes start afresh with their draws
+        self._settle_gusts()   # the gust processes start afresh with their draws
         return [None if seed is None else seed + i for i in range(self.num_envs)]
 
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
