@@ -102,7 +102,7 @@ def test_evaluations_fly_the_gusts_of_their_condition():
     assert fixed.gust == 20.0
     cfg.eval.condition = "all"
     assert [(c.name, c.gust) for c in flight_conditions(cfg.eval, cfg.wind, cfg.vehicle, 0, 4_000_000)] == [
-        ("c0", 0.0), ("c1", 100.0)]
+        ("c0", 0.0), ("c1", 60.0)]
 
     class Hover:
         def predict(self, obs, deterministic=True):

@@ -18,7 +18,7 @@
 # Conditions (arms: the wind tag, +vehicle where not nominal): x3 (3 m/s +x), x1p5 (1.5 m/s +x), mx3 (3 m/s -x),
 # y3 (3 m/s +y); none (still air), none+mass1p5 (x1.5 mass and inertia), none+motor0p7 (rotor 1 at 70% thrust);
 # x3g<S> (3 m/s +x with Dryden gusts of sigma S, RotorPy's sig_wind: realised std 0.0326 S m/s per axis; the gust
-# phases need COMMIT=105cba5 or later, the first with wind.gusts).
+# phases need COMMIT=ae4f713 or later: the first whose gusts start settled, in training and in every evaluation).
 # The store, checkpoints and sweep dirs live in $STUDY; the code is the pinned commit's (a worktree there).
 set -euo pipefail
 
@@ -45,8 +45,9 @@ fly() {  # fly TRAINED_WHERE... -- NAME OVERRIDES...: the runs' kept policy (bes
 WIND_ARMS=(x3 x1p5 mx3 y3)
 declare -A WIND=([x3]="3.0 [1.0,0.0,0.0]" [x1p5]="1.5 [1.0,0.0,0.0]" [mx3]="3.0 [-1.0,0.0,0.0]" [y3]="3.0 [0.0,1.0,0.0]")
 declare -A STILL=([nominal]="1.0 [1.0,1.0,1.0,1.0]" [mass1p5]="1.5 [1.0,1.0,1.0,1.0]" [motor0p7]="1.0 [0.7,1.0,1.0,1.0]")
-GUST=${GUST:-60}
-GUST_SCAN=${GUST_SCAN:-10 30 60 100}
+GUST=${GUST:-60}                       # train-gusts, reevaluate-gusts: the sigma trained under
+GUST_SCAN=${GUST_SCAN:-10 30 60 100}   # gust-scan: the sigmas the x3 policies fly under
+GUST_TABLE=${GUST_TABLE:-60 100}       # table: a row per sigma trained under
 still_name() { [ "$1" = nominal ] && echo on_none || echo "on_none_$1"; }
 
 case ${1:-} in
@@ -86,9 +87,10 @@ case ${1:-} in
   import) (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.archive import "$ROOT/docs/conditions/runs") ;;
   export) (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.archive export --experiment transfer --out "$ROOT/docs/conditions/runs") ;;
   table)
+    gust_changes=(); for sigma in $GUST_TABLE; do gust_changes+=(--change "gusts sigma 0 -> $sigma at 3 m/s=x3:x3g$sigma"); done
     (cd "$STUDY" && PYTHONPATH=$CODE/src "$PY" -m sweep.report.transfer --experiment transfer --out "$ROOT/docs/conditions" \
        --change "paper speed 3 -> 1.5 m/s=x3:x1p5" --change "flip +x -> -x=x3:mx3" --change "rotate +x -> +y=x3:y3" \
        --change "payload x1.0 -> x1.5=none:none+mass1p5" --change "motor 1 at 100% -> 70%=none:none+motor0p7" \
-       --change "gusts sigma 0 -> $GUST at 3 m/s=x3:x3g$GUST") ;;
+       "${gust_changes[@]}") ;;
   *) echo "usage: $0 train|reevaluate|reevaluate-wind|reevaluate-still|gust-scan|train-gusts|reevaluate-gusts|table|import|export" >&2; exit 2 ;;
 esac
