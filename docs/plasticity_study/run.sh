@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# The plasticity study (issue 35; experiment=plasticity), phase by phase, resumable across sessions.
+#
+#   docs/plasticity_study/run.sh pilot-flip      # every agent, seeds 0-2, the first 3 segments (9M) under wind=flip
+#   docs/plasticity_study/run.sh pilot-payload   # the same under vehicle=payload (still air)
+#   docs/plasticity_study/run.sh pilot-report    # the pilot's per-segment tables and curves -> docs/plasticity_study/pilot
+#   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
+#   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
+#
+# Every phase is an ordinary Hydra multirun with resume=auto: a job whose run is FINISHED in the store is skipped, an
+# interrupted one continues from its checkpoint. Store, checkpoints and sweep dirs live in $STUDY; each phase runs the
+# code of a pinned commit from a worktree there (a job's key hashes its config, so the same commit and store find the
+# same jobs). PILOT_COMMIT: the code of the pilot (experiment=plasticity as committed; its segment length, 3M, is the
+# one the pilot tests). The main phases are added once the pilot has fixed the segment length and the seeds.
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+STUDY=${STUDY:-/work/studies/plasticity}
+PILOT_COMMIT=9ff7f41
+PY=${PYTHON:-$ROOT/.venv/bin/python}
+ARCHIVE=$ROOT/docs/plasticity_study/runs
+export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
+mkdir -p "$STUDY"
+
+sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's store and checkpoints; output under $STUDY
+  local commit=$1 code=$STUDY/code-$1 name=$2; shift 2
+  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
+  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=plasticity train.checkpoint_dir="$STUDY/ckpt" \
+     hydra.sweep.dir="$STUDY/multirun/$name" "$@")
+}
+PILOT=(train.total_timesteps=9000000 seed=0,1,2 tracking.experiment=plasticity-pilot)
+
+case ${1:-} in
+  pilot-flip)    sweep $PILOT_COMMIT pilot-flip wind=flip "${PILOT[@]}" ;;
+  pilot-payload) sweep $PILOT_COMMIT pilot-payload wind=none vehicle=payload "${PILOT[@]}" ;;
+  pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --out "$ROOT/docs/plasticity_study/pilot") ;;
+  export)        for exp in plasticity-pilot plasticity; do
+                   (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
+                 done ;;
+  import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
+  *) sed -n 2,8p "$0"; exit 2 ;;
+esac
