@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The plasticity study (issue 35; experiment=plasticity), phase by phase, resumable across sessions.
 #
-#   docs/plasticity_study/run.sh pilot-flip      # every agent, seeds 0-2, the first 3 segments (9M) under wind=flip
+#   docs/plasticity_study/run.sh pilot-flip      # every agent, seeds 0-2, 3 segments of 4M (12M) under wind=flip
 #   docs/plasticity_study/run.sh pilot-payload   # the same under vehicle=payload (still air)
 #   docs/plasticity_study/run.sh pilot-report    # the pilot's per-segment tables and curves -> docs/plasticity_study/pilot
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
@@ -10,8 +10,10 @@
 # Every phase is an ordinary Hydra multirun with resume=auto: a job whose run is FINISHED in the store is skipped, an
 # interrupted one continues from its checkpoint. Store, checkpoints and sweep dirs live in $STUDY; each phase runs the
 # code of a pinned commit from a worktree there (a job's key hashes its config, so the same commit and store find the
-# same jobs). PILOT_COMMIT: the code of the pilot (experiment=plasticity as committed; its segment length, 3M, is the
-# one the pilot tests). The main phases are added once the pilot has fixed the segment length and the seeds.
+# same jobs). PILOT_COMMIT: the code of the pilot (experiment=plasticity as committed). The pilot flies 4M segments, the
+# longest the issue allows, so that reset_all's fresh networks show whether they hover by 2M, 3M or 4M into a segment
+# (a 3M pilot could not tell whether 4M is needed). The main phases are added once the pilot has fixed the segment
+# length and the seeds.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
@@ -28,7 +30,7 @@ sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's sto
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=plasticity train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
 }
-PILOT=(train.total_timesteps=9000000 seed=0,1,2 tracking.experiment=plasticity-pilot)
+PILOT=(wind.segment_steps=4000000 train.total_timesteps=12000000 seed=0,1,2 tracking.experiment=plasticity-pilot)
 
 case ${1:-} in
   pilot-flip)    sweep $PILOT_COMMIT pilot-flip wind=flip "${PILOT[@]}" ;;
