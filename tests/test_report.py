@@ -1072,7 +1072,9 @@ def log_late_evaluations(tmp_path, late: dict) -> str:
 def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path):
     """Evaluations every 100 steps to 1000, 'late' = steps > 500 (five of them). PPO seed 0 hovers in 2 of 5 late
     evaluations, seed 1 never; L2 seed 0 at 100%, seed 1 at 50% (counts: >= 50%). Leaderboard: L2 first at
-    100 ± 0%, PPO 20% (per seed 40, 0); P(L2 > PPO) = 1 (every pair). Profile of the late mean success:
+    100 ± 0%, PPO 20% (per seed 40, 0); P(L2 > PPO) = 1 (every pair). Learned the hover (any evaluation at
+    >= 50%): both L2 seeds, PPO's seed 0 only (its seed 1 peaks at 0.1), so PPO's seeds that learned kept 40%
+    and L2's 100%. Profile of the late mean success:
     L2's runs (1.0, 0.5) -> 100% above τ = 0.4, 50% above 0.5 (strictly) and 0.99, 0% above 1."""
     from sweep.report import stats as rstats
 
@@ -1084,8 +1086,11 @@ def test_leaderboard_and_performance_profile_on_hand_built_evaluations(tmp_path)
     assert board.loc[0, "keeps_hovering"] == 1.0 and board.loc[0, "keeps_hovering_ci95"] == 0.0
     assert board.loc[1, "keeps_hovering"] == pytest.approx(0.2)
     assert board.loc[0, "p_improve_over_ppo"] == 1.0 and np.isnan(board.loc[1, "p_improve_over_ppo"])
+    assert list(board["learned_seeds"]) == [2, 1] and list(board["kept_if_learned"]) == pytest.approx([1.0, 0.4])
     shown = md_table(tmp_path / "out" / "leaderboard.md").set_index("Agent")
     assert shown.loc["PPO", "per seed"] == "40, 0" and shown.loc["L2 + PPO", "Keeps hovering (%)"] == "100 ± 0"
+    assert shown.loc["PPO", "Learned the hover (seeds)"] == "1/2"
+    assert shown.loc["PPO", "Keeps hovering, seeds that learned (%)"] == "40"   # one seed: no interval
     assert list(board["wall_minutes"]) == [1.5, 1.5] and shown.loc["PPO", "Wall time per run (min)"] == "1.5"
     summary = md_table(tmp_path / "out" / "summary.md").set_index("Agent")
     assert summary.loc["L2 + PPO", "Wall time per run (min)"] == "1.5"

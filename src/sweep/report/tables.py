@@ -276,7 +276,10 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
         poi = (stats.poi_ci(g["keeps_hovering"], dw.loc[dw["condition"] == ppo, "keeps_hovering"])
                if ppo is not None else (np.nan,) * 3)
         iqm = stats.iqm_ci(g["final_reward"])
+        learned = g["learned"] == 1.0
+        kept, kept_half, _ = stats.mean_t_ci(g.loc[learned, "keeps_hovering"])
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "keeps_hovering": keep, "keeps_hovering_ci95": half,
+               "learned_seeds": int(learned.sum()), "kept_if_learned": kept, "kept_if_learned_ci95": kept_half,
                "late_success": g["late_success"].mean(), "p_improve_over_ppo": poi[0], "p_improve_ci_low": poi[1],
                "p_improve_ci_high": poi[2], "iqm_final_reward": iqm[0], "iqm_ci_low": iqm[1], "iqm_ci_high": iqm[2],
                **{f"success_{p}": g[_key(p, "success_rate")].mean() for p in SHOWN},
@@ -284,6 +287,8 @@ def leaderboard(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
                "wall_minutes": g["wall_minutes"].mean()}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  "Keeps hovering (%)": plus_minus(100 * keep, 100 * half, 0), "per seed": _per_seed(g, "keeps_hovering"),
+                 "Learned the hover (seeds)": f"{int(learned.sum())}/{g['learned'].notna().sum()}",
+                 "Keeps hovering, seeds that learned (%)": plus_minus(100 * kept, 100 * kept_half, 0),
                  "P(> PPO) [95% CI]": interval(*poi, 2),
                  "IQM final reward [95% CI]": interval(*iqm, 0),
                  **{f"Success {p} (%)": f"{_fixed(100 * num[f'success_{p}'], 0)} ({_per_seed(g, _key(p, 'success_rate'))})"
