@@ -319,7 +319,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         total = int(r.data.params.get("train.total_timesteps", 1 << 62))
         steps = {m.step for m in client.get_metric_history(r.info.run_id, "eval/success_rate")}
         if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
-            stems.add("segment_scores_paper")
+            stems |= {"segment_scores_paper", "interval_relearning"}   # and re-learning in the segments after it
     finals = {k for r in runs for k in r.data.metrics}
     stems |= {f"interval_{name}" for name, key in [("final_reward", "rollout/ep_rew_mean"),
                                                     ("success_final", "eval/success_rate"),
@@ -744,7 +744,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_best",
-                                    "segment_scores_paper"})   # its evaluations span several wind segments
+                                    "segment_scores_paper", "interval_relearning"})   # evaluations in several wind segments
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -931,7 +931,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_final",
-                                    "segment_scores_paper"})   # its evaluations span several wind segments
+                                    "segment_scores_paper", "interval_relearning"})   # evaluations in several wind segments
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -1353,6 +1353,58 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert shown.loc["PPO", "2 (800–1.2k)"] == "12 ± 0 (Δ -50 [-50, -50])"
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
     assert (tmp_path / "out" / "segment_scores_flip.png").exists()
+
+
+RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 400 steps, probe loss at 400, 800, 1200)
+    "reset_all": ([[0.0, 0.5, 1.0, 1.0]] * 3, [0.020, 0.030, 0.040]),
+    "ppo": ([[0.0, 0.5, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.5]], [0.050, 0.100, 0.150]),
+    "l2": ([[0.0, 0.0, 0.5, 1.0], [1.0] * 4, [1.0] * 4], [0.010, 0.010, 0.010]),
+}
+
+
+def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_path):
+    """Re-learning = the mean eval-success AUC over the segments after the first. reset_all: 62.5% in every segment;
+    PPO: 100% then 12.5% -> 56.25% (Δ −6.25 pp, P(> reset_all) 0), its later segments end at 100% and 50%; L2:
+    100% (Δ +37.5 pp, P 1), its first segment 37.5%. Seeds alike except the probe (+0.001 x seed), so the probe's
+    first readings rank the runs l2 < reset_all < PPO while re-learning ranks them l2 > reset_all > PPO in tied
+    pairs: Spearman's ρ across the 6 runs = −16 / sqrt(17.5 x 16) (ranks 1..6 against 5.5, 5.5, 3.5, 3.5, 1.5,
+    1.5), across the 3 agents' means −1 with every bootstrap resample at −1 (or constant, left out)."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    exp_id = client.create_experiment("relearn")
+    for agent, (segs, probe) in RELEARN_EVALS.items():
+        for seed in (0, 1):
+            run_id = client.create_run(exp_id, start_time=1_000_000, tags={
+                "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
+            evals = [v for seg in segs for v in seg]
+            metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
+            metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
+            metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
+            client.log_batch(run_id, metrics=metrics, params=[
+                Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
+                Param("eval.condition", "current"), Param("agent.l2.enabled", str(agent == "l2"))])
+            client.set_terminated(run_id, end_time=1_060_000)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
+    assert list(got.index) == ["l2", "reset_all", "ppo"]          # best re-learner first
+    assert list(got["relearning"]) == pytest.approx([1.0, 0.625, 0.5625])
+    assert list(got["first_auc"]) == pytest.approx([0.375, 0.625, 0.625])
+    assert got.loc["ppo", "relearning_end"] == pytest.approx(0.75) and list(got["changes"]) == [2, 2, 2]
+    assert got.loc["ppo", "delta_vs_reset_all"] == pytest.approx(-0.0625)
+    assert got.loc["l2", "delta_vs_reset_all"] == pytest.approx(0.375)
+    assert np.isnan(got.loc["reset_all", "delta_vs_reset_all"])   # the reference against itself
+    assert (got.loc["l2", "p_improve_over_reset_all"], got.loc["ppo", "p_improve_over_reset_all"]) == (1.0, 0.0)
+    assert got.loc["l2", "p_improve_over_ppo"] == 1.0 and np.isnan(got.loc["ppo", "p_improve_over_ppo"])
+    shown = md_table(tmp_path / "out" / "relearning.md").set_index("Agent")
+    assert shown.loc["PPO", "Re-learning AUC (%)"] == "56 ± 0" and shown.loc["PPO", "per seed"] == "56, 56"
+    assert shown.loc["PPO", "Δ vs reset_all (pp) [95% CI]"] == "-6 [-6, -6]"
+    corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
+    runs_rho = corr.loc[("probe_first", "runs (agents x seeds)")]
+    assert runs_rho["rho"] == pytest.approx(-16 / np.sqrt(17.5 * 16)) and runs_rho["n"] == 6
+    agents_rho = corr.loc[("probe_first", "agents (seed means)")]
+    assert (agents_rho["rho"], agents_rho["rho_low"], agents_rho["rho_high"]) == pytest.approx((-1, -1, -1))
+    assert (tmp_path / "out" / "interval_relearning.png").exists()
 
 
 def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):

@@ -13,7 +13,10 @@ where no run evaluated its final policy). Tables: table3.{md,tex,csv} (evaluatio
 and of the best one kept during training, side by side, and the top seed's numbers), summary.{md,csv} (training
 outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule), leaderboard.{md,csv}
 (runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
-reference agents on that measure).
+reference agents on that measure). Runs evaluated in two segments of the schedule or more (the plasticity study)
+add segment_scores.{md,csv} and segment_scores_W (per segment against reset_all), relearning.{md,csv} (sorted by
+the re-learning AUC, relearning.py; with the probe's rank correlation to it, probe_correlation.csv) and
+interval_relearning.
 """
 from __future__ import annotations
 
@@ -30,7 +33,8 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
-    from sweep.report import conditions, figures, highlight as emphasis, intervals, load, stats, style, tables
+    from sweep.report import (conditions, figures, highlight as emphasis, intervals, load, relearning, stats, style,
+                              tables)
 
     uri = load.tracking_uri()
     try:
@@ -78,7 +82,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     style.apply()
     per_run, late = stats.per_run_curve_stats(histories), stats.late_evaluations(histories)
     shown = emphasis.choose(emphasis.ranking(runs, per_run, late), runs, conds, top, list(highlight))
-    per_run_all = runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
+    evals = stats.segment_evaluations(histories, runs)
+    relearn = relearning.per_run(evals)   # runs evaluated in two segments or more
+    per_run_all = (runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
+                   .merge(relearn, on="run_id", how="left"))
     written = []
     for name in intervals.MEASURES:
         written += intervals.interval_figure(per_run_all, name, conds, out_dir)
@@ -87,8 +94,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             written += figures.curve_figure(runs, histories, wind, stem, conds, shown, out_dir)
     for wind in sorted(runs["wind"].unique()):
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
-    evals = stats.segment_evaluations(histories, runs)
-    if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
+    if len(relearn):
         numbers, _ = tables.segment_scores(runs, evals, conds)
         for wind in sorted(numbers["wind"].unique()):
             written += figures.segment_scores(numbers, wind, conds, out_dir)
@@ -116,6 +122,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
     written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run)
+    written += relearning.write(runs, per_run, histories, relearn, conds, out_dir)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))

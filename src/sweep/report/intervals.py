@@ -37,7 +37,7 @@ class Measure:
 
 
 # File stem interval_<name> -> the measure: the leaderboard's primary measure, the final and best policy's success
-# at the end of the run, the IQM final training reward.
+# at the end of the run, the IQM final training reward, the re-learning AUC (drawn only for runs that have it).
 MEASURES = {
     "keeps_hovering": Measure("keeps_hovering", "Keeps hovering (%): share of late evaluations at ≥ 50% success",
                               "mean", 100.0, True),
@@ -46,6 +46,8 @@ MEASURES = {
     "success_best": Measure(metrics.eval_key("best", "success_rate"), "Best policy's success (%)", "mean", 100.0,
                             True),
     "final_reward": Measure("final_reward", "IQM final training reward", "iqm"),
+    "relearning": Measure("relearning", "Re-learning AUC (%): mean eval success within the segments after the first",
+                          "mean", 100.0, True),   # runs evaluated in two segments or more (relearning.py)
 }
 STATISTIC = {"mean": "mean over seeds, bar: 95% Student-t CI", "iqm": "IQM over seeds, bar: 95% bootstrap CI"}
 

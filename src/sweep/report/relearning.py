@@ -1,0 +1,177 @@
+"""Re-learning after changes (the plasticity study's primary measure, docs/plasticity_study.md) and whether the
+plasticity probe predicts it.
+
+A change the network must re-learn (docs/conditions.md: a wind flip, a payload) starts every segment after the
+first. Per run, from stats.segment_evaluations' per-segment eval-success AUCs (evaluations flown under the
+condition being learned, eval.condition=current):
+
+* ``relearning``: the mean AUC over the segments after the first, i.e. how fast and how well the network learns
+  each new condition. Averaging the segments weighs every change alike; the first segment is left out because
+  it is learning from scratch for every agent (``first_auc`` keeps it).
+* ``relearning_end``: the mean success at the end of those segments (how much was learned by the next change).
+
+``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
+improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
+plasticity problem and no prior knowledge would do). ``probe_correlation`` asks whether the probe (Lyle et al.'s
+fit to random targets, which needs no change of task) ranks runs as their re-learning does: Spearman's rank
+correlation between a run's probe loss and its ``relearning``, across runs (agents x seeds) and across agents
+(seed means), with 95% bootstrap CIs.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from sweep.metrics import PROBE
+from sweep.report import stats
+
+REFERENCE = "reset_all"   # the fresh network at every change
+COLUMNS = ["run_id", "relearning", "relearning_end", "first_auc", "changes"]
+
+
+def per_run(evals: pd.DataFrame) -> pd.DataFrame:
+    """One row per run with evaluations in at least two segments (``evals``: stats.segment_evaluations)."""
+    rows = []
+    for run_id, g in evals.groupby("run_id"):
+        later = g[g["segment"] >= 1]
+        if not len(later):
+            continue
+        first = g.loc[g["segment"] == 0, "auc"]
+        rows.append({"run_id": run_id, "relearning": float(later["auc"].mean()),
+                     "relearning_end": float(later["end"].mean()),
+                     "first_auc": float(first.iloc[0]) if len(first) else np.nan, "changes": int(len(later))})
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def probe_readings(histories: pd.DataFrame) -> pd.DataFrame:
+    """Per run: ``probe_first``, the probe loss at its earliest reading (the first change: after the first
+    condition was learned, before any re-learning), and ``probe_mean``, the mean of all its readings."""
+    probe = histories[histories["key"] == PROBE].sort_values(["run_id", "step"])
+    return (probe.groupby("run_id")["value"].agg(probe_first="first", probe_mean="mean").reset_index()
+            if len(probe) else pd.DataFrame(columns=["run_id", "probe_first", "probe_mean"]))
+
+
+def spearman_ci(x, y) -> tuple[float, float, float, int]:
+    """Spearman's rank correlation of paired samples, its 95% percentile-bootstrap CI (pairs resampled together,
+    stats.RESAMPLES times; resamples with a constant side have no correlation and are left out) and n."""
+    from scipy.stats import rankdata
+
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    if len(x) < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return np.nan, np.nan, np.nan, int(len(x))
+    pick = np.random.default_rng(stats.RNG_SEED).integers(0, len(x), (stats.RESAMPLES, len(x)))
+    rx, ry = rankdata(np.vstack([x, x[pick]]), axis=1), rankdata(np.vstack([y, y[pick]]), axis=1)
+    rx, ry = rx - rx.mean(axis=1, keepdims=True), ry - ry.mean(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):   # a constant resample: 0 / 0
+        rho = (rx * ry).sum(axis=1) / np.sqrt((rx ** 2).sum(axis=1) * (ry ** 2).sum(axis=1))
+    low, high = np.nanpercentile(rho[1:], [2.5, 97.5])
+    return float(rho[0]), float(low), float(high), int(len(x))
+
+
+def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, conds, reference: str = REFERENCE
+          ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per condition x wind, sorted by ``relearning`` (mean ± 95% Student-t CI over seeds, per seed): its difference
+    to ``reference``'s (95% bootstrap CI resampling both agents' seeds), P(> reference) and P(> PPO) [95% CI],
+    the first segment's AUC, the later segments' end success, and the final readings (``per_run``:
+    stats.per_run_curve_stats)."""
+    from sweep.metrics import CURVES
+    from sweep.report.conditions import baseline_of
+    from sweep.report.tables import _fixed, _identity, _ordered_groups, _per_seed, interval, plus_minus
+
+    df = runs.merge(per_run, on="run_id", how="left").merge(relearn, on="run_id", how="inner")
+    numbers, display = [], []
+    for wind, cond, g in _ordered_groups(df, conds):
+        dw = df[df["wind"] == wind]
+        present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
+        theirs = {name: dw.loc[dw["condition"] == other, "relearning"] if other is not None else None
+                  for name, other in (("ppo", baseline_of(present, cond, "agent", "ppo")),
+                                      (reference, baseline_of(present, cond, "agent", reference)))}
+        mean, half, _ = stats.mean_t_ci(g["relearning"])
+        delta = (stats.mean_diff_ci(g["relearning"], theirs[reference]) if theirs[reference] is not None
+                 else (np.nan,) * 3)
+        p_ref, p_ppo = ((stats.poi_ci(g["relearning"], theirs[name]) if theirs[name] is not None else (np.nan,) * 3)
+                        for name in (reference, "ppo"))
+        first, first_half, _ = stats.mean_t_ci(g["first_auc"])
+        end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
+        finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g), "changes": int(g["changes"].max()),
+               "relearning": mean, "relearning_ci95": half,
+               f"delta_vs_{reference}": delta[0], f"delta_vs_{reference}_low": delta[1],
+               f"delta_vs_{reference}_high": delta[2],
+               f"p_improve_over_{reference}": p_ref[0], f"p_improve_over_{reference}_low": p_ref[1],
+               f"p_improve_over_{reference}_high": p_ref[2], "p_improve_over_ppo": p_ppo[0],
+               "p_improve_over_ppo_low": p_ppo[1], "p_improve_over_ppo_high": p_ppo[2],
+               "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
+               **{c.final: g[c.final].mean() for c in finals}}
+        shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
+                 "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
+                 f"Δ vs {reference} (pp) [95% CI]": interval(*(100 * v for v in delta), 0),
+                 f"P(> {reference}) [95% CI]": interval(*p_ref, 2), "P(> PPO) [95% CI]": interval(*p_ppo, 2),
+                 "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
+                 "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
+                 **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in finals}}
+        numbers.append(num)
+        display.append(shown)
+    numbers, display = pd.DataFrame(numbers), pd.DataFrame(display)
+    if len(numbers):
+        order = numbers.sort_values(["wind", "relearning"], ascending=[True, False], kind="stable").index
+        numbers, display = numbers.loc[order], display.loc[order]
+    return numbers.reset_index(drop=True), display.reset_index(drop=True)
+
+
+def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataFrame) -> pd.DataFrame:
+    """Spearman's rho [95% CI] between a probe reading (probe_readings) and ``relearning``, per wind: across runs
+    (agents x seeds) and across conditions (their seed means). A plastic network fits the probe well (low loss),
+    so a probe that predicts re-learning gives a negative rho."""
+    df = runs[["run_id", "wind", "condition"]].merge(relearn, on="run_id").merge(probe, on="run_id")
+    rows = []
+    for wind, dw in df.groupby("wind"):
+        means = dw.groupby("condition")[["relearning", "probe_first", "probe_mean"]].mean()
+        for reading in ("probe_first", "probe_mean"):
+            for across, d in (("runs (agents x seeds)", dw), ("agents (seed means)", means)):
+                rho, low, high, n = spearman_ci(d[reading], d["relearning"])
+                rows.append({"wind": wind, "reading": reading, "across": across, "rho": rho, "rho_low": low,
+                             "rho_high": high, "n": n})
+    return pd.DataFrame(rows, columns=["wind", "reading", "across", "rho", "rho_low", "rho_high", "n"])
+
+
+READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings"}
+
+
+def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, relearn: pd.DataFrame, conds,
+          out) -> list:
+    """relearning.csv/.md (the table and the probe's correlation with it) and probe_correlation.csv; nothing
+    without runs that evaluated in two segments or more."""
+    from sweep.report.tables import interval, markdown, provenance
+
+    if not len(relearn):
+        return []
+    numbers, display = table(runs, per_run, relearn, conds)
+    numbers.to_csv(out / "relearning.csv", index=False)
+    text = (provenance(runs) + "Re-learning after each change: per run, the mean over the segments after the first "
+            "of the in-training eval-success AUC within the segment (segment_scores.md; evaluations flown under "
+            "eval.condition, 'current' = the condition being learned), mean ± 95% Student-t CI over seeds, per seed "
+            f"in the next column. Δ vs {REFERENCE} = the difference of means to {REFERENCE} (a fresh network at every "
+            "change) in percentage points, 95% percentile-bootstrap CI resampling both agents' seeds; P(> ...) = "
+            "rliable's probability that a run of the agent re-learns better than a run of the reference [95% "
+            "bootstrap CI]. First segment AUC = learning from scratch (left out of the measure); success at "
+            "segment ends = the mean over the later segments of the last evaluation before the next change. Then "
+            "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
+    written = [out / "relearning.csv", out / "relearning.md"]
+    probe = probe_readings(histories)
+    if len(probe):
+        corr = probe_correlation(runs, relearn, probe)
+        corr.to_csv(out / "probe_correlation.csv", index=False)
+        shown = pd.DataFrame({"Wind": corr["wind"], "Probe reading": corr["reading"].map(READINGS),
+                              "Across": corr["across"], "n": corr["n"],
+                              "Spearman ρ [95% CI]": [interval(r.rho, r.rho_low, r.rho_high, 2)
+                                                      for r in corr.itertuples()]})
+        text += ("\n\nDoes the probe predict re-learning? Spearman's rank correlation between a run's probe loss "
+                 "(plasticity/probe_loss: a copy of the policy fitted to random targets; higher = less plastic) and "
+                 "its re-learning AUC, across runs and across agents (seed means), 95% percentile-bootstrap CI "
+                 "(pairs resampled). A probe that predicts re-learning gives ρ < 0.\n\n" + markdown(shown))
+        written.append(out / "probe_correlation.csv")
+    (out / "relearning.md").write_text(text)
+    return written
