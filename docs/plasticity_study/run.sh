@@ -35,7 +35,8 @@ PILOT=(wind.segment_steps=4000000 train.total_timesteps=12000000 seed=0,1,2 trac
 case ${1:-} in
   pilot-flip)    sweep $PILOT_COMMIT pilot-flip wind=flip "${PILOT[@]}" ;;
   pilot-payload) sweep $PILOT_COMMIT pilot-payload wind=none vehicle=payload "${PILOT[@]}" ;;
-  pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --out "$ROOT/docs/plasticity_study/pilot") ;;
+  pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
+                  --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
