@@ -108,8 +108,9 @@ def test_history_equals_the_stored_reference(name, tmp_path):
         assert steps_got == steps_want, f"{name} {key}: logged at {steps_got}, reference {steps_want}"
         for (step, value), (_, ref) in zip(got[key], want[key]):
             if same_cpu:
-                assert value == ref or (math.isnan(value) and math.isnan(ref)), \
-                    f"{name} {key} at step {step}: {value!r} != reference {ref!r} (bitwise, same CPU)"
+                assert value == ref or (math.isnan(value) and math.isnan(ref)), (
+                    f"{name} {key} at step {step}: {value!r} != reference {ref!r} (bitwise: the file's CPU, or "
+                    f"REFERENCE_BITWISE=1 on this one: {cpu_signature()[:60]!r}, the file's {stored['cpu'][:60]!r})")
             else:
                 rtol = OTHER_CPU_PROBE_RTOL if key.startswith("plasticity/probe") else OTHER_CPU_RTOL
                 assert value == pytest.approx(ref, rel=rtol, abs=1e-9, nan_ok=True), f"{name} {key} at {step}"

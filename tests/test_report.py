@@ -319,7 +319,9 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         total = int(r.data.params.get("train.total_timesteps", 1 << 62))
         steps = {m.step for m in client.get_metric_history(r.info.run_id, "eval/success_rate")}
         if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
-            stems |= {"segment_scores_paper", "interval_relearning"}   # and re-learning in the segments after it
+            stems.add("segment_scores_paper")
+            if r.data.params.get("eval.condition") == "current":   # and re-learning in the segments after the first
+                stems.add("interval_relearning")
     finals = {k for r in runs for k in r.data.metrics}
     stems |= {f"interval_{name}" for name, key in [("final_reward", "rollout/ep_rew_mean"),
                                                     ("success_final", "eval/success_rate"),
@@ -744,7 +746,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_best",
-                                    "segment_scores_paper", "interval_relearning"})   # evaluations in several wind segments
+                                    "segment_scores_paper"})   # its evaluations span several wind segments
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -931,7 +933,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_final",
-                                    "segment_scores_paper", "interval_relearning"})   # evaluations in several wind segments
+                                    "segment_scores_paper"})   # its evaluations span several wind segments
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -1356,23 +1358,28 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
 
 
 RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 400 steps, probe loss at 400, 800, 1200)
-    "reset_all": ([[0.0, 0.5, 1.0, 1.0]] * 3, [0.020, 0.030, 0.040]),
-    "ppo": ([[0.0, 0.5, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.5]], [0.050, 0.100, 0.150]),
-    "l2": ([[0.0, 0.0, 0.5, 1.0], [1.0] * 4, [1.0] * 4], [0.010, 0.010, 0.010]),
+    "reset_all": ([[0.0, 0.5, 1.0, 1.0]] * 3, [0.001, 0.001, 0.001]),
+    "ppo": ([[0.0, 0.5, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.5]], [0.050, 0.060, 0.070]),
+    "redo": ([[0.0, 0.5, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.5] * 4], [0.030, 0.030, 0.030]),
+    "l2": ([[0.0, 0.0, 0.5, 1.0], [1.0] * 4, [1.0] * 4], [0.010, 0.200, 0.200]),
 }
 
 
 def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_path):
     """Re-learning = the mean eval-success AUC over the segments after the first. reset_all: 62.5% in every segment;
-    PPO: 100% then 12.5% -> 56.25% (Δ −6.25 pp, P(> reset_all) 0), its later segments end at 100% and 50%; L2:
-    100% (Δ +37.5 pp, P 1), its first segment 37.5%. Seeds alike except the probe (+0.001 x seed), so the probe's
-    first readings rank the runs l2 < reset_all < PPO while re-learning ranks them l2 > reset_all > PPO in tied
-    pairs: Spearman's ρ across the 6 runs = −16 / sqrt(17.5 x 16) (ranks 1..6 against 5.5, 5.5, 3.5, 3.5, 1.5,
-    1.5), across the 3 agents' means −1 with every bootstrap resample at −1 (or constant, left out)."""
+    PPO: 100% then 12.5% -> 56.25% (Δ −6.25 pp, P(> reset_all) 0), its later segments end at 100% and 50%; ReDo
+    75%; L2: 100% (Δ +37.5 pp, P 1), its first segment 37.5%. Seeds alike except the probe (+0.001 x seed).
+    The probe (reset_all left out: its probe reads a fresh network) ranks the runs differently by its first
+    reading (L2 < ReDo < PPO: ranks 1..6 against re-learning's 5.5, 5.5, 3.5, 3.5, 1.5, 1.5, ρ = −16 / sqrt(17.5 x
+    16)) and by the mean of its readings (ReDo < PPO < L2, whose probe rises: against 3.5, 3.5, 1.5, 1.5, 5.5, 5.5,
+    ρ = +8 / sqrt(17.5 x 16)); both equal scipy's spearmanr. Across the 3 agents' means ρ = −1 with no CI (< 6
+    pairs). A run evaluated under a fixed condition is left out of re-learning."""
+    from scipy.stats import spearmanr
+
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(uri)
     exp_id = client.create_experiment("relearn")
-    for agent, (segs, probe) in RELEARN_EVALS.items():
+    for agent, (segs, probe) in [*RELEARN_EVALS.items(), ("cbp_l2", RELEARN_EVALS["l2"])]:
         for seed in (0, 1):
             run_id = client.create_run(exp_id, start_time=1_000_000, tags={
                 "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
@@ -1382,15 +1389,16 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
             metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
             client.log_batch(run_id, metrics=metrics, params=[
                 Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
-                Param("eval.condition", "current"), Param("agent.l2.enabled", str(agent == "l2"))])
+                Param("eval.condition", "fixed" if agent == "cbp_l2" else "current"),  # CBP: flown under one wind
+                Param("agent.l2.enabled", str(agent in ("l2", "cbp_l2")))])
             client.set_terminated(run_id, end_time=1_060_000)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
-    assert list(got.index) == ["l2", "reset_all", "ppo"]          # best re-learner first
-    assert list(got["relearning"]) == pytest.approx([1.0, 0.625, 0.5625])
-    assert list(got["first_auc"]) == pytest.approx([0.375, 0.625, 0.625])
-    assert got.loc["ppo", "relearning_end"] == pytest.approx(0.75) and list(got["changes"]) == [2, 2, 2]
+    assert list(got.index) == ["l2", "redo", "reset_all", "ppo"]          # best re-learner first; no CBP
+    assert list(got["relearning"]) == pytest.approx([1.0, 0.75, 0.625, 0.5625])
+    assert list(got["first_auc"]) == pytest.approx([0.375, 0.625, 0.625, 0.625])
+    assert got.loc["ppo", "relearning_end"] == pytest.approx(0.75) and list(got["later_segments"]) == [2] * 4
     assert got.loc["ppo", "delta_vs_reset_all"] == pytest.approx(-0.0625)
     assert got.loc["l2", "delta_vs_reset_all"] == pytest.approx(0.375)
     assert np.isnan(got.loc["reset_all", "delta_vs_reset_all"])   # the reference against itself
@@ -1400,10 +1408,14 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     assert shown.loc["PPO", "Re-learning AUC (%)"] == "56 ± 0" and shown.loc["PPO", "per seed"] == "56, 56"
     assert shown.loc["PPO", "Δ vs reset_all (pp) [95% CI]"] == "-6 [-6, -6]"
     corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
-    runs_rho = corr.loc[("probe_first", "runs (agents x seeds)")]
-    assert runs_rho["rho"] == pytest.approx(-16 / np.sqrt(17.5 * 16)) and runs_rho["n"] == 6
-    agents_rho = corr.loc[("probe_first", "agents (seed means)")]
-    assert (agents_rho["rho"], agents_rho["rho_low"], agents_rho["rho_high"]) == pytest.approx((-1, -1, -1))
+    relearn = [1.0, 1.0, 0.75, 0.75, 0.5625, 0.5625]                                   # L2, ReDo, PPO; seeds 0, 1
+    for reading, probe, rho in (("probe_first", [0.010, 0.011, 0.030, 0.031, 0.050, 0.051], -16),
+                                ("probe_mean", [0.410 / 3, 0.413 / 3, 0.030, 0.031, 0.060, 0.061], 8)):
+        row = corr.loc[(reading, "runs (agents x seeds)")]
+        assert row["rho"] == pytest.approx(rho / np.sqrt(17.5 * 16)) == pytest.approx(spearmanr(probe, relearn)[0])
+        assert row["n"] == 6 and row["rho_low"] <= row["rho"] <= row["rho_high"]
+    agents = corr.loc[("probe_first", "agents (seed means)")]
+    assert agents["rho"] == pytest.approx(-1) and agents["n"] == 3 and np.isnan(agents["rho_low"])
     assert (tmp_path / "out" / "interval_relearning.png").exists()
 
 

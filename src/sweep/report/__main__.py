@@ -83,7 +83,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     per_run, late = stats.per_run_curve_stats(histories), stats.late_evaluations(histories)
     shown = emphasis.choose(emphasis.ranking(runs, per_run, late), runs, conds, top, list(highlight))
     evals = stats.segment_evaluations(histories, runs)
-    relearn = relearning.per_run(evals)   # runs evaluated in two segments or more
+    relearn = relearning.per_run(evals, runs)   # runs evaluated under the condition being learned, after a change
     per_run_all = (runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
                    .merge(relearn, on="run_id", how="left"))
     written = []
@@ -94,7 +94,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             written += figures.curve_figure(runs, histories, wind, stem, conds, shown, out_dir)
     for wind in sorted(runs["wind"].unique()):
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
-    if len(relearn):
+    if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
         numbers, _ = tables.segment_scores(runs, evals, conds)
         for wind in sorted(numbers["wind"].unique()):
             written += figures.segment_scores(numbers, wind, conds, out_dir)

@@ -1,9 +1,10 @@
-"""Re-learning after changes (the plasticity study's primary measure, docs/plasticity_study.md) and whether the
-plasticity probe predicts it.
+"""Re-learning after changes (the plasticity study's primary measure, issue 35, docs/plasticity_study.md) and
+whether the plasticity probe predicts it.
 
 A change the network must re-learn (docs/conditions.md: a wind flip, a payload) starts every segment after the
-first. Per run, from stats.segment_evaluations' per-segment eval-success AUCs (evaluations flown under the
-condition being learned, eval.condition=current):
+first. Per run evaluated under the condition being learned (eval.condition=current; a run evaluated under a fixed
+condition, as the remedies study's, scores no re-learning and is left out), from stats.segment_evaluations'
+per-segment eval-success AUCs:
 
 * ``relearning``: the mean AUC over the segments after the first, i.e. how fast and how well the network learns
   each new condition. Averaging the segments weighs every change alike; the first segment is left out because
@@ -15,7 +16,8 @@ improvement) and the difference to reset_all (a fresh network at every change: w
 plasticity problem and no prior knowledge would do). ``probe_correlation`` asks whether the probe (Lyle et al.'s
 fit to random targets, which needs no change of task) ranks runs as their re-learning does: Spearman's rank
 correlation between a run's probe loss and its ``relearning``, across runs (agents x seeds) and across agents
-(seed means), with 95% bootstrap CIs.
+(seed means), with 95% bootstrap CIs. reset_all is left out of it: its remedy hook runs before the probe at every
+change, so its probe reads a freshly drawn network by construction.
 """
 from __future__ import annotations
 
@@ -26,26 +28,31 @@ from sweep.metrics import PROBE
 from sweep.report import stats
 
 REFERENCE = "reset_all"   # the fresh network at every change
-COLUMNS = ["run_id", "relearning", "relearning_end", "first_auc", "changes"]
+COLUMNS = ["run_id", "relearning", "relearning_end", "first_auc", "later_segments"]
+MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
 
 
-def per_run(evals: pd.DataFrame) -> pd.DataFrame:
-    """One row per run with evaluations in at least two segments (``evals``: stats.segment_evaluations)."""
+def per_run(evals: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
+    """One row per run evaluated under eval.condition=current in a segment after the first (``evals``:
+    stats.segment_evaluations). ``later_segments``: how many segments after the first it has evaluations in."""
+    current = runs.loc[runs.get("eval_condition", pd.Series(index=runs.index, dtype=object)) == "current", "run_id"]
     rows = []
-    for run_id, g in evals.groupby("run_id"):
+    for run_id, g in evals[evals["run_id"].isin(set(current))].groupby("run_id"):
         later = g[g["segment"] >= 1]
         if not len(later):
             continue
         first = g.loc[g["segment"] == 0, "auc"]
         rows.append({"run_id": run_id, "relearning": float(later["auc"].mean()),
                      "relearning_end": float(later["end"].mean()),
-                     "first_auc": float(first.iloc[0]) if len(first) else np.nan, "changes": int(len(later))})
+                     "first_auc": float(first.iloc[0]) if len(first) else np.nan,
+                     "later_segments": int(len(later))})
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
 def probe_readings(histories: pd.DataFrame) -> pd.DataFrame:
     """Per run: ``probe_first``, the probe loss at its earliest reading (the first change: after the first
-    condition was learned, before any re-learning), and ``probe_mean``, the mean of all its readings."""
+    condition was learned, before any re-learning), and ``probe_mean``, the mean of all its readings (at every
+    change and at the end of training)."""
     probe = histories[histories["key"] == PROBE].sort_values(["run_id", "step"])
     return (probe.groupby("run_id")["value"].agg(probe_first="first", probe_mean="mean").reset_index()
             if len(probe) else pd.DataFrame(columns=["run_id", "probe_first", "probe_mean"]))
@@ -53,7 +60,8 @@ def probe_readings(histories: pd.DataFrame) -> pd.DataFrame:
 
 def spearman_ci(x, y) -> tuple[float, float, float, int]:
     """Spearman's rank correlation of paired samples, its 95% percentile-bootstrap CI (pairs resampled together,
-    stats.RESAMPLES times; resamples with a constant side have no correlation and are left out) and n."""
+    stats.RESAMPLES times; resamples with a constant side have no correlation and are left out; no CI below
+    MIN_CI_PAIRS pairs) and n."""
     from scipy.stats import rankdata
 
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
@@ -66,6 +74,8 @@ def spearman_ci(x, y) -> tuple[float, float, float, int]:
     rx, ry = rx - rx.mean(axis=1, keepdims=True), ry - ry.mean(axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):   # a constant resample: 0 / 0
         rho = (rx * ry).sum(axis=1) / np.sqrt((rx ** 2).sum(axis=1) * (ry ** 2).sum(axis=1))
+    if len(x) < MIN_CI_PAIRS:
+        return float(rho[0]), np.nan, np.nan, int(len(x))
     low, high = np.nanpercentile(rho[1:], [2.5, 97.5])
     return float(rho[0]), float(low), float(high), int(len(x))
 
@@ -96,7 +106,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         first, first_half, _ = stats.mean_t_ci(g["first_auc"])
         end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
-        num = {**_identity(conds, cond, wind), "n_seeds": len(g), "changes": int(g["changes"].max()),
+        num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
                f"delta_vs_{reference}": delta[0], f"delta_vs_{reference}_low": delta[1],
                f"delta_vs_{reference}_high": delta[2],
@@ -123,9 +133,11 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
 
 def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataFrame) -> pd.DataFrame:
     """Spearman's rho [95% CI] between a probe reading (probe_readings) and ``relearning``, per wind: across runs
-    (agents x seeds) and across conditions (their seed means). A plastic network fits the probe well (low loss),
-    so a probe that predicts re-learning gives a negative rho."""
-    df = runs[["run_id", "wind", "condition"]].merge(relearn, on="run_id").merge(probe, on="run_id")
+    (agents x seeds) and across conditions (their seed means); reset_all left out (its probe reads a fresh network
+    by construction). A plastic network fits the probe well (low loss), so a probe that predicts re-learning gives
+    a negative rho."""
+    df = runs.loc[runs["agent"] != REFERENCE, ["run_id", "wind", "condition"]]
+    df = df.merge(relearn, on="run_id").merge(probe, on="run_id")
     rows = []
     for wind, dw in df.groupby("wind"):
         means = dw.groupby("condition")[["relearning", "probe_first", "probe_mean"]].mean()
@@ -143,7 +155,7 @@ READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "prob
 def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, relearn: pd.DataFrame, conds,
           out) -> list:
     """relearning.csv/.md (the table and the probe's correlation with it) and probe_correlation.csv; nothing
-    without runs that evaluated in two segments or more."""
+    without runs that per_run scores."""
     from sweep.report.tables import interval, markdown, provenance
 
     if not len(relearn):
@@ -151,12 +163,13 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
     numbers, display = table(runs, per_run, relearn, conds)
     numbers.to_csv(out / "relearning.csv", index=False)
     text = (provenance(runs) + "Re-learning after each change: per run, the mean over the segments after the first "
-            "of the in-training eval-success AUC within the segment (segment_scores.md; evaluations flown under "
-            "eval.condition, 'current' = the condition being learned), mean ± 95% Student-t CI over seeds, per seed "
+            "of the in-training eval-success AUC within the segment (segment_scores.md; runs evaluated under "
+            "eval.condition = current, the condition being learned), mean ± 95% Student-t CI over seeds, per seed "
             f"in the next column. Δ vs {REFERENCE} = the difference of means to {REFERENCE} (a fresh network at every "
             "change) in percentage points, 95% percentile-bootstrap CI resampling both agents' seeds; P(> ...) = "
             "rliable's probability that a run of the agent re-learns better than a run of the reference [95% "
-            "bootstrap CI]. First segment AUC = learning from scratch (left out of the measure); success at "
+            "bootstrap CI]. Runs with fewer segments (a shorter run) average fewer changes. First segment AUC = "
+            "learning from scratch (left out of the measure); success at "
             "segment ends = the mean over the later segments of the last evaluation before the next change. Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     written = [out / "relearning.csv", out / "relearning.md"]
@@ -170,8 +183,9 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
                                                       for r in corr.itertuples()]})
         text += ("\n\nDoes the probe predict re-learning? Spearman's rank correlation between a run's probe loss "
                  "(plasticity/probe_loss: a copy of the policy fitted to random targets; higher = less plastic) and "
-                 "its re-learning AUC, across runs and across agents (seed means), 95% percentile-bootstrap CI "
-                 "(pairs resampled). A probe that predicts re-learning gives ρ < 0.\n\n" + markdown(shown))
+                 f"its re-learning AUC, across runs and across agents (seed means), {REFERENCE} left out (its probe at "
+                 "a change reads the freshly drawn network), 95% percentile-bootstrap CI (pairs resampled; none "
+                 f"below {MIN_CI_PAIRS} pairs). A probe that predicts re-learning gives ρ < 0.\n\n" + markdown(shown))
         written.append(out / "probe_correlation.csv")
     (out / "relearning.md").write_text(text)
     return written
