@@ -1399,6 +1399,10 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     assert list(got["relearning"]) == pytest.approx([1.0, 0.75, 0.625, 0.5625])
     assert list(got["first_auc"]) == pytest.approx([0.375, 0.625, 0.625, 0.625])
     assert got.loc["ppo", "relearning_end"] == pytest.approx(0.75) and list(got["later_segments"]) == [2] * 4
+    # first evaluation at >= 50% after a change: PPO at 100 steps into segment 1 and 400 into segment 2 (0.5 at
+    # its end), reset_all at 200 in both; L2 and ReDo at 100 in both
+    assert list(got["learned_share"]) == [1.0] * 4
+    assert list(got["hover_after_median"]) == [100, 100, 200, 250]
     assert got.loc["ppo", "delta_vs_reset_all"] == pytest.approx(-0.0625)
     assert got.loc["l2", "delta_vs_reset_all"] == pytest.approx(0.375)
     assert np.isnan(got.loc["reset_all", "delta_vs_reset_all"])   # the reference against itself

@@ -10,6 +10,8 @@ per-segment eval-success AUCs:
   each new condition. Averaging the segments weighs every change alike; the first segment is left out because
   it is learning from scratch for every agent (``first_auc`` keeps it).
 * ``relearning_end``: the mean success at the end of those segments (how much was learned by the next change).
+* ``learned_share``: the share of those segments with an evaluation at >= 50% success (stats.HOVER), and
+  ``hover_after``: the median timesteps from a change to that first evaluation, over the segments that reach it.
 
 ``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
 improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
@@ -28,7 +30,7 @@ from sweep.metrics import PROBE
 from sweep.report import stats
 
 REFERENCE = "reset_all"   # the fresh network at every change
-COLUMNS = ["run_id", "relearning", "relearning_end", "first_auc", "later_segments"]
+COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "later_segments"]
 MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
 
 
@@ -44,6 +46,9 @@ def per_run(evals: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
         first = g.loc[g["segment"] == 0, "auc"]
         rows.append({"run_id": run_id, "relearning": float(later["auc"].mean()),
                      "relearning_end": float(later["end"].mean()),
+                     "learned_share": float(later["hover_after"].notna().mean()),
+                     "hover_after": float(later["hover_after"].median()) if later["hover_after"].notna().any()
+                     else np.nan,
                      "first_auc": float(first.iloc[0]) if len(first) else np.nan,
                      "later_segments": int(len(later))})
     return pd.DataFrame(rows, columns=COLUMNS)
@@ -105,6 +110,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                         for name in (reference, "ppo"))
         first, first_half, _ = stats.mean_t_ci(g["first_auc"])
         end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
+        learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
@@ -114,6 +120,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                f"p_improve_over_{reference}_high": p_ref[2], "p_improve_over_ppo": p_ppo[0],
                "p_improve_over_ppo_low": p_ppo[1], "p_improve_over_ppo_high": p_ppo[2],
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
+               "learned_share": learned, "learned_share_ci95": learned_half,
+               "hover_after_median": float(g["hover_after"].median()),
                **{c.final: g[c.final].mean() for c in finals}}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
@@ -121,6 +129,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  f"P(> {reference}) [95% CI]": interval(*p_ref, 2), "P(> PPO) [95% CI]": interval(*p_ppo, 2),
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
+                 "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
+                 "Steps to hover (M)": _fixed(num["hover_after_median"] / 1e6, 2),
                  **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in finals}}
         numbers.append(num)
         display.append(shown)
@@ -170,7 +180,9 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
             "rliable's probability that a run of the agent re-learns better than a run of the reference [95% "
             "bootstrap CI]. Runs with fewer segments (a shorter run) average fewer changes. First segment AUC = "
             "learning from scratch (left out of the measure); success at "
-            "segment ends = the mean over the later segments of the last evaluation before the next change. Then "
+            "segment ends = the mean over the later segments of the last evaluation before the next change; "
+            "segments hovered = the share of the later segments with an evaluation at >= 50% success; steps to "
+            "hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     written = [out / "relearning.csv", out / "relearning.md"]
     probe = probe_readings(histories)

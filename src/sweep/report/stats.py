@@ -138,8 +138,9 @@ def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataF
     not split by it: give it the same ``segment_steps``): the in-training evaluations logged
     at steps in (k S, (k+1) S] (the final evaluation counts in the last segment). ``auc``: the area under the
     eval-success curve within the segment, normalised by its length (the evaluations are evenly spaced, so their
-    mean); ``end``: the success of the segment's last evaluation; ``n_evals``. Segments with no evaluation are
-    left out. Columns run_id, segment, start, end_step, auc, end, n_evals."""
+    mean); ``end``: the success of the segment's last evaluation; ``n_evals``; ``hover_after``: the timesteps from
+    the segment's start to its first evaluation at >= HOVER success (NaN if none). Segments with no evaluation are
+    left out. Columns run_id, segment, start, end_step, auc, end, n_evals, hover_after."""
     rows = []
     evals = histories[histories["key"] == EVAL_SUCCESS]
     for run in runs.itertuples():
@@ -153,11 +154,14 @@ def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataF
             steps = np.minimum(steps, total)
         segment = np.ceil(steps / length).astype(int) - 1
         for k in np.unique(segment[segment >= 0]):
-            v = values[segment == k]
+            v, at = values[segment == k], steps[segment == k]
+            hovered = at[v >= HOVER]
             rows.append({"run_id": run.run_id, "segment": int(k), "start": int(k * length),
                          "end_step": int((k + 1) * length), "auc": float(v.mean()), "end": float(v[-1]),
-                         "n_evals": int(len(v))})
-    return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end_step", "auc", "end", "n_evals"])
+                         "n_evals": int(len(v)),
+                         "hover_after": float(hovered[0] - k * length) if len(hovered) else np.nan})
+    return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end_step", "auc", "end", "n_evals",
+                                       "hover_after"])
 
 
 def mean_t_ci(values) -> tuple[float, float, int]:
