@@ -1323,24 +1323,31 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 }
 
 
-def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
-    """Segments of 400 steps, four evaluations each. reset_all learns every segment alike: AUC 62.5%, end 100%. PPO
-    matches it on segment 0 (Δ 0), transfers forward on segment 1 (AUC 100%, Δ +37.5 points) and fails on segment 2
-    (AUC 12.5%, end 50%: Δ −50 points). Both seeds alike, so every interval has zero width."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    client = MlflowClient(uri)
-    exp_id = client.create_experiment("seg")
-    for agent, segs in SEGMENT_EVALS.items():
+def log_segment_runs(client, experiment: str, runs: list[tuple]) -> None:
+    """Experiment ``experiment``: per (agent, evaluations by segment, probe losses, eval.condition) two seeds on a wind
+    flip schedule of segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400,
+    800 and 1200."""
+    exp_id = client.create_experiment(experiment)
+    for agent, segs, probe, condition in runs:
         for seed in (0, 1):
             run_id = client.create_run(exp_id, start_time=1_000_000, tags={
                 "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
             evals = [v for seg in segs for v in seg]
             metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
+            metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
             client.log_batch(run_id, metrics=metrics, params=[
                 Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
-                Param("eval.condition", "current")])
+                Param("eval.condition", condition), Param("agent.l2.enabled", str(agent in ("l2", "cbp_l2")))])
             client.set_terminated(run_id, end_time=1_060_000)
+
+
+def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
+    """Segments of 400 steps, four evaluations each. reset_all learns every segment alike: AUC 62.5%, end 100%. PPO
+    matches it on segment 0 (Δ 0), transfers forward on segment 1 (AUC 100%, Δ +37.5 points) and fails on segment 2
+    (AUC 12.5%, end 50%: Δ −50 points). Both seeds alike, so every interval has zero width."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_segment_runs(MlflowClient(uri), "seg", [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()])
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "segment_scores.csv").set_index(["agent", "segment"])
@@ -1377,21 +1384,9 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     from scipy.stats import spearmanr
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    client = MlflowClient(uri)
-    exp_id = client.create_experiment("relearn")
-    for agent, (segs, probe) in [*RELEARN_EVALS.items(), ("cbp_l2", RELEARN_EVALS["l2"])]:
-        for seed in (0, 1):
-            run_id = client.create_run(exp_id, start_time=1_000_000, tags={
-                "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
-            evals = [v for seg in segs for v in seg]
-            metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
-            metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
-            metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
-            client.log_batch(run_id, metrics=metrics, params=[
-                Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
-                Param("eval.condition", "fixed" if agent == "cbp_l2" else "current"),  # CBP: flown under one wind
-                Param("agent.l2.enabled", str(agent in ("l2", "cbp_l2")))])
-            client.set_terminated(run_id, end_time=1_060_000)
+    log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
+                                                    for agent, (segs, probe) in RELEARN_EVALS.items()]
+                     + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")])   # CBP: flown under one fixed wind
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")

@@ -4,6 +4,11 @@
 #   docs/plasticity_study/run.sh pilot-flip      # every agent, seeds 0-2, 3 segments of 4M (12M) under wind=flip
 #   docs/plasticity_study/run.sh pilot-payload   # the same under vehicle=payload (still air)
 #   docs/plasticity_study/run.sh pilot-report    # the pilot's per-segment tables and curves -> docs/plasticity_study/pilot
+#   docs/plasticity_study/run.sh main-flip       # experiment=plasticity: 12 agents x seeds 0-7 x 18M (6 segments of 3M)
+#   docs/plasticity_study/run.sh main-payload    # the same under vehicle=payload (still air)
+#   AGENTS_EXTRA=ppo,reset_all,a,b,c docs/plasticity_study/run.sh extra-flip     # seeds 8-15 of PPO, reset_all
+#   AGENTS_EXTRA=ppo,reset_all,a,b,c docs/plasticity_study/run.sh extra-payload  #   and the pilot's top 3
+#   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
 #
@@ -12,13 +17,16 @@
 # code of a pinned commit from a worktree there (a job's key hashes its config, so the same commit and store find the
 # same jobs). PILOT_COMMIT: the code of the pilot (experiment=plasticity as committed). The pilot flies 4M segments, the
 # longest the issue allows, so that reset_all's fresh networks show whether they hover by 2M, 3M or 4M into a segment
-# (a 3M pilot could not tell whether 4M is needed). The main phases are added once the pilot has fixed the segment
-# length and the seeds.
+# (a 3M pilot could not tell whether 4M is needed). It measured 3M to be enough (docs/plasticity_study.md: 17 of
+# the 18 fresh networks that hovered within 4M did so by 3M), so the main phases run the preset as committed:
+# MAIN_COMMIT, the pilot's code (no training code changed since), 6 segments of 3M.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
+MAIN_COMMIT=9ff7f41
+AGENTS_EXTRA=${AGENTS_EXTRA:-}   # seeds 8-15: PPO, reset_all and the pilot's top 3, e.g. ppo,reset_all,a,b,c
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/plasticity_study/runs
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
@@ -35,11 +43,20 @@ PILOT=(wind.segment_steps=4000000 train.total_timesteps=12000000 seed=0,1,2 trac
 case ${1:-} in
   pilot-flip)    sweep $PILOT_COMMIT pilot-flip wind=flip "${PILOT[@]}" ;;
   pilot-payload) sweep $PILOT_COMMIT pilot-payload wind=none vehicle=payload "${PILOT[@]}" ;;
+  main-flip)     sweep $MAIN_COMMIT main-flip wind=flip ${SEEDS:+"seed=$SEEDS"} ;;
+  main-payload)  sweep $MAIN_COMMIT main-payload wind=none vehicle=payload ${SEEDS:+"seed=$SEEDS"} ;;
+  extra-flip)    [ -n "$AGENTS_EXTRA" ] || { echo "run.sh: set AGENTS_EXTRA (e.g. ppo,reset_all,a,b,c)" >&2; exit 2; }
+                 sweep $MAIN_COMMIT extra-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$AGENTS_EXTRA" ;;
+  extra-payload) [ -n "$AGENTS_EXTRA" ] || { echo "run.sh: set AGENTS_EXTRA (e.g. ppo,reset_all,a,b,c)" >&2; exit 2; }
+                 sweep $MAIN_COMMIT extra-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
+                   "agent=$AGENTS_EXTRA" ;;
+  report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all \
+                    --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                   --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
   import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,8p "$0"; exit 2 ;;
+  *) sed -n 2,13p "$0"; exit 2 ;;
 esac

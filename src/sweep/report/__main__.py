@@ -81,9 +81,9 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             print(f"sweep.report: missing: {key} history in {', '.join(lacking)}")
     style.apply()
     per_run, late = stats.per_run_curve_stats(histories), stats.late_evaluations(histories)
-    shown = emphasis.choose(emphasis.ranking(runs, per_run, late), runs, conds, top, list(highlight))
     evals = stats.segment_evaluations(histories, runs)
     relearn = relearning.per_run(evals, runs)   # runs evaluated under the condition being learned, after a change
+    shown = emphasis.choose(emphasis.ranking(runs, per_run, late, relearn), runs, conds, top, list(highlight))
     per_run_all = (runs.merge(per_run, on="run_id", how="left").merge(late, on="run_id", how="left")
                    .merge(relearn, on="run_id", how="left"))
     written = []
@@ -97,7 +97,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
         numbers, _ = tables.segment_scores(runs, evals, conds)
         for wind in sorted(numbers["wind"].unique()):
-            written += figures.segment_scores(numbers, wind, conds, out_dir)
+            written += figures.segment_scores(numbers, wind, conds, shown, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
     coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]

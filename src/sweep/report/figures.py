@@ -225,30 +225,45 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     return save(fig, out, f"performance_profile_{wind}")
 
 
-def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference: str = "reset_all") -> list[Path]:
+def segment_scores(numbers: pd.DataFrame, wind: str, conds, shown, out: Path, reference: str = "reset_all"
+                   ) -> list[Path]:
     """Figure segment_scores_<wind> (tables.segment_scores' numbers): per segment of the schedule, each agent's
     eval-success AUC (top) and its difference to ``reference`` on that segment (bottom, where the reference ran),
-    agents side by side at each segment, 95% CIs as bars."""
+    agents side by side at each segment with 95% CIs as bars, each agent's points joined by a line across the
+    segments. With more than highlight.MAX_COLOURED agents only those ``shown`` colours (the top by the primary
+    measure, PPO, the reference, --highlight) are in colour and in the legend; the rest are thin grey, no bars."""
     sub = numbers[numbers["wind"] == wind]
     if sub.empty:
         return []
     key = "condition"
-    shown = [c for c in conds.order if c in set(sub[key])]
+    present = [c for c in conds.order if c in set(sub[key])]
+    present = shown.ranked(wind, present)
     diff = f"auc_vs_{reference}"
     has_diff = sub[diff].notna().any()
-    fig, axes = plt.subplots(2 if has_diff else 1, 1, sharex=True, squeeze=False,
-                             figsize=(style.figure_width(1), 3.6 if has_diff else 2.2))
-    width = 0.8 / max(len(shown), 1)
-    handles = []
-    for i, cond in enumerate(shown):
+    fig, axes = plt.subplots(2 if has_diff else 1, 1, sharex=True, squeeze=False, layout="constrained",
+                             figsize=(style.figure_width(1), 4.2 if has_diff else 2.6))
+    width = 0.8 / max(len(present), 1)
+    handles, grey = [], []
+    for i, cond in enumerate(present):
         rows = sub[sub[key] == cond].sort_values("segment")
-        x = rows["segment"].to_numpy() + (i - (len(shown) - 1) / 2) * width
-        look = dict(color=conds.color(cond), marker="o", ms=3, lw=0, elinewidth=0.9, capsize=1.5)
-        axes[0, 0].errorbar(x, 100 * rows["auc_mean"], yerr=100 * rows["auc_ci95"].fillna(0), **look)
-        handles.append(Line2D([], [], color=conds.color(cond), marker="o", ms=3, lw=0, label=conds.series(cond)))
+        x = rows["segment"].to_numpy() + (i - (len(present) - 1) / 2) * width
+        coloured = shown.is_coloured(wind, conds.agent(cond))
+        colour = conds.color(cond) if coloured else "0.75"
+        look = (dict(color=colour, marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5, zorder=3) if coloured
+                else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
+        series = [(axes[0, 0], 100 * rows["auc_mean"].to_numpy(), 100 * rows["auc_ci95"].fillna(0).to_numpy())]
         if has_diff and rows[diff].notna().any():
             d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
-            axes[1, 0].errorbar(x, d, yerr=[np.nan_to_num(d - lo), np.nan_to_num(hi - d)], **look)
+            series.append((axes[1, 0], d, [np.nan_to_num(d - lo), np.nan_to_num(hi - d)]))
+        for ax, y, err in series:
+            if coloured:
+                ax.errorbar(x, y, yerr=err, **look)
+            else:
+                ax.plot(x, y, **look)
+        if coloured:
+            handles.append(Line2D([], [], color=colour, marker="o", ms=3, lw=0.8, label=conds.series(cond)))
+        else:
+            grey.append(conds.series(cond))
     axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
     axes[0, 0].set_ylim(-3, 103)
     if has_diff:
@@ -256,9 +271,10 @@ def segment_scores(numbers: pd.DataFrame, wind: str, conds, out: Path, reference
         axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
     axes[-1, 0].set_xlabel("Segment of the schedule (each wind.segment_steps)")
     axes[-1, 0].xaxis.set_major_locator(MaxNLocator(integer=True))
-    axes[0, 0].legend(handles=handles, fontsize="x-small", ncol=2, frameon=False, loc="lower left",
-                      bbox_to_anchor=(0, 1.02))
-    fig.suptitle(f"Learning per segment, wind {wind}: mean over seeds, bars 95% CI", fontsize="small", y=1.0)
+    axes[0, 0].set_title(f"Learning per segment, wind {wind}: mean over seeds, bars 95% CI", fontsize="small")
+    note = textwrap.fill("grey, no bars: " + ", ".join(grey), 100) if grey else None
+    fig.legend(handles=handles, fontsize="x-small", ncol=2, frameon=False, loc="outside lower center",
+               title=note, title_fontsize="xx-small")
     return save(fig, out, f"segment_scores_{wind}")
 
 

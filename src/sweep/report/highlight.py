@@ -8,7 +8,9 @@ and says in its note which ones. An agent coloured in one panel is coloured in e
 
 The ranking is the leaderboard's (tables.leaderboard): "keeps hovering" (the mean over seeds of the share of a
 run's late evaluations at >= 50% success, stats.late_evaluations), highest first, ties and runs without
-evaluations during training by the IQM of the final training reward.
+evaluations during training by the IQM of the final training reward. In a wind whose runs are scored on
+re-learning (relearning.py: evaluated under the condition being learned, after a change) the re-learning AUC
+ranks instead, the plasticity study's primary measure.
 """
 from __future__ import annotations
 
@@ -25,19 +27,27 @@ TOP = 3                      # with more: the top conditions of each panel in co
 REFERENCES = ("ppo", "reset_all")  # always in colour
 
 
-def ranking(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame) -> pd.DataFrame:
-    """Per wind and condition: ``keeps_hovering`` (mean over seeds; NaN without late evaluations) and
-    ``iqm_final_reward``, with ``rank`` (0 = first) within the wind by the two, highest first."""
+def ranking(runs: pd.DataFrame, per_run: pd.DataFrame, late: pd.DataFrame,
+            relearn: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Per wind and condition: ``keeps_hovering`` (mean over seeds; NaN without late evaluations), ``relearning``
+    (mean over seeds; NaN without) and ``iqm_final_reward``, with ``rank`` (0 = first) within the wind by the
+    primary measure (``relearning`` where the wind has it, else ``keeps_hovering``), then the reward, highest
+    first."""
     df = runs[["run_id", "wind", "condition"]].merge(per_run[["run_id", "final_reward"]], on="run_id", how="left")
     df = df.merge(late[["run_id", "keeps_hovering"]], on="run_id", how="left")
+    relearn = relearn if relearn is not None else pd.DataFrame(columns=["run_id", "relearning"])
+    df = df.merge(relearn[["run_id", "relearning"]], on="run_id", how="left")
     rows = []
     for (wind, cond), g in df.groupby(["wind", "condition"], sort=False):
         reward = g["final_reward"].to_numpy(dtype=float)
         reward = reward[np.isfinite(reward)]
         rows.append({"wind": wind, "condition": cond, "keeps_hovering": g["keeps_hovering"].mean(),
+                     "relearning": pd.to_numeric(g["relearning"]).mean(),
                      "iqm_final_reward": float(rly.aggregate_iqm(reward[:, None])) if len(reward) else np.nan})
-    table = pd.DataFrame(rows, columns=["wind", "condition", "keeps_hovering", "iqm_final_reward"])
-    table = table.sort_values(["wind", "keeps_hovering", "iqm_final_reward"], ascending=[True, False, False],
+    table = pd.DataFrame(rows, columns=["wind", "condition", "keeps_hovering", "relearning", "iqm_final_reward"])
+    scored = table.groupby("wind")["relearning"].transform(lambda v: v.notna().any())
+    table["primary"] = table["relearning"].where(scored, table["keeps_hovering"])
+    table = table.sort_values(["wind", "primary", "iqm_final_reward"], ascending=[True, False, False],
                               na_position="last", kind="stable")
     table["rank"] = table.groupby("wind").cumcount()
     return table.reset_index(drop=True)
