@@ -26,8 +26,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from sweep.metrics import PROBE
+from sweep.metrics import CURVES, PROBE
 from sweep.report import stats
+from sweep.report.conditions import baseline_of
+from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, interval, markdown, plus_minus,
+                                 provenance)
 
 REFERENCE = "reset_all"   # the fresh network at every change
 COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "later_segments"]
@@ -91,10 +94,6 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
     to ``reference``'s (95% bootstrap CI resampling both agents' seeds), P(> reference) and P(> PPO) [95% CI],
     the first segment's AUC, the later segments' end success, and the final readings (``per_run``:
     stats.per_run_curve_stats)."""
-    from sweep.metrics import CURVES
-    from sweep.report.conditions import baseline_of
-    from sweep.report.tables import _fixed, _identity, _ordered_groups, _per_seed, interval, plus_minus
-
     df = runs.merge(per_run, on="run_id", how="left").merge(relearn, on="run_id", how="inner")
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
@@ -166,8 +165,6 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
           out) -> list:
     """relearning.csv/.md (the table and the probe's correlation with it) and probe_correlation.csv; nothing
     without runs that per_run scores."""
-    from sweep.report.tables import interval, markdown, provenance
-
     if not len(relearn):
         return []
     numbers, display = table(runs, per_run, relearn, conds)
