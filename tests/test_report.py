@@ -319,7 +319,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         total = int(r.data.params.get("train.total_timesteps", 1 << 62))
         steps = {m.step for m in client.get_metric_history(r.info.run_id, "eval/success_rate")}
         if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
-            stems.add("segment_scores_paper")
+            stems.add("segment_scores")
             if r.data.params.get("eval.condition") == "current":   # and re-learning in the segments after the first
                 stems.add("interval_relearning")
     finals = {k for r in runs for k in r.data.metrics}
@@ -330,7 +330,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
 
 
 PANELLED = ("eval_flights_3d", "eval_position_axes",  # a panel per condition: one column wide whatever --by says
-            "segment_scores_paper")  # agents side by side in one column
+            "segment_scores")  # agents side by side in one column per wind
 
 
 # -- tests ---------------------------------------------------------------------------------------------------
@@ -746,7 +746,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_best",
-                                    "segment_scores_paper"})   # its evaluations span several wind segments
+                                    "segment_scores"})   # its evaluations span several wind segments
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -933,7 +933,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_final",
-                                    "segment_scores_paper"})   # its evaluations span several wind segments
+                                    "segment_scores"})   # its evaluations span several wind segments
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -1323,15 +1323,17 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 }
 
 
-def log_segment_runs(client, experiment: str, runs: list[tuple]) -> None:
-    """Experiment ``experiment``: per (agent, evaluations by segment, probe losses, eval.condition) two seeds on a wind
-    flip schedule of segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400,
-    800 and 1200."""
-    exp_id = client.create_experiment(experiment)
+def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal") -> None:
+    """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
+    seeds on a ``wind`` schedule (with ``vehicle``) of segments of 400 steps to 1200, evaluations every 100 steps; the
+    probe (+0.001 x seed) at 400, 800 and 1200."""
+    known = client.get_experiment_by_name(experiment)
+    exp_id = known.experiment_id if known else client.create_experiment(experiment)
     for agent, segs, probe, condition in runs:
         for seed in (0, 1):
             run_id = client.create_run(exp_id, start_time=1_000_000, tags={
-                "agent": agent, "wind": "flip", "seed": str(seed), "run_name": f"{agent}-s{seed}"}).info.run_id
+                "agent": agent, "wind": wind, "vehicle": vehicle, "seed": str(seed),
+                "run_name": f"{agent}-{wind}-{vehicle}-s{seed}"}).info.run_id
             evals = [v for seg in segs for v in seg]
             metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
@@ -1361,7 +1363,24 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     shown = md_table(tmp_path / "out" / "segment_scores.md").set_index("Agent")
     assert shown.loc["PPO", "2 (800–1.2k)"] == "12 ± 0 (Δ -50 [-50, -50])"
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
-    assert (tmp_path / "out" / "segment_scores_flip.png").exists()
+    assert (tmp_path / "out" / "segment_scores.png").exists()
+
+
+def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):
+    """Two changes in one experiment (a wind flip, a payload in still air): one segment_scores figure two columns
+    wide, each change's numbers in the table under its own arm."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    runs = [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()]
+    log_segment_runs(client, "two", runs)
+    log_segment_runs(client, "two", runs, wind="none", vehicle="payload")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "two")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "segment_scores.csv")
+    assert set(got["wind"]) == {"flip", "none+payload"}
+    assert sorted((tmp_path / "out").glob("segment_scores*.png")) == [tmp_path / "out" / "segment_scores.png"]
+    height, width = image.imread(tmp_path / "out" / "segment_scores.png").shape[:2]
+    assert 1700 <= width <= 2200 and height > 900, (width, height)   # both columns of the page, two rows
 
 
 RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 400 steps, probe loss at 400, 800, 1200)

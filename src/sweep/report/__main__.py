@@ -14,9 +14,9 @@ and of the best one kept during training, side by side, and the top seed's numbe
 outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule), leaderboard.{md,csv}
 (runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
 reference agents on that measure). Runs evaluated in two segments of the schedule or more (the plasticity study)
-add segment_scores.{md,csv} and segment_scores_W (per segment against reset_all), relearning.{md,csv} (sorted by
-the re-learning AUC, relearning.py; with the probe's rank correlation to it, probe_correlation.csv) and
-interval_relearning.
+add segment_scores.{md,csv} and the figure segment_scores (per segment against reset_all, a column per wind),
+relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to it,
+probe_correlation.csv) and interval_relearning.
 """
 from __future__ import annotations
 
@@ -96,8 +96,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
         numbers, _ = tables.segment_scores(runs, evals, conds)
-        for wind in sorted(numbers["wind"].unique()):
-            written += figures.segment_scores(numbers, wind, conds, shown, out_dir)
+        written += figures.segment_scores(numbers, conds, shown, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
     coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]
@@ -121,7 +120,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
-    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run)
+    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals)
     written += relearning.write(runs, per_run, histories, relearn, conds, out_dir)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())

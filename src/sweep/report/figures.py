@@ -225,57 +225,65 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     return save(fig, out, f"performance_profile_{wind}")
 
 
-def segment_scores(numbers: pd.DataFrame, wind: str, conds, shown, out: Path, reference: str = "reset_all"
-                   ) -> list[Path]:
-    """Figure segment_scores_<wind> (tables.segment_scores' numbers): per segment of the schedule, each agent's
-    eval-success AUC (top) and its difference to ``reference`` on that segment (bottom, where the reference ran),
-    agents side by side at each segment with 95% CIs as bars, each agent's points joined by a line across the
-    segments. With more than highlight.MAX_COLOURED agents only those ``shown`` colours (the top by the primary
-    measure, PPO, the reference, --highlight) are in colour and in the legend; the rest are thin grey, no bars."""
-    sub = numbers[numbers["wind"] == wind]
-    if sub.empty:
+def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: str = "reset_all") -> list[Path]:
+    """Figure segment_scores (tables.segment_scores' numbers), small multiples with one column per arm (training
+    wind and vehicle: one change of condition each): per segment of the schedule, each agent's eval-success AUC
+    (top row) and its difference to ``reference`` on that segment (bottom row, where the reference ran), agents side
+    by side at each segment with 95% CIs as bars, each agent's points joined by a line across the segments, axes
+    shared so the changes compare at a glance. With more than highlight.MAX_COLOURED agents in an arm only those
+    ``shown`` colours there (its top by the primary measure, PPO, the reference, --highlight) are in colour and in
+    the legend; the rest are thin grey, no bars."""
+    if numbers.empty:
         return []
-    key = "condition"
-    present = [c for c in conds.order if c in set(sub[key])]
-    present = shown.ranked(wind, present)
+    winds = sorted(numbers["wind"].unique(), key=lambda w: (w != "paper", w))
     diff = f"auc_vs_{reference}"
-    has_diff = sub[diff].notna().any()
-    fig, axes = plt.subplots(2 if has_diff else 1, 1, sharex=True, squeeze=False, layout="constrained",
-                             figsize=(style.figure_width(1), 4.2 if has_diff else 2.6))
-    width = 0.8 / max(len(present), 1)
-    handles, grey = [], []
-    for i, cond in enumerate(present):
-        rows = sub[sub[key] == cond].sort_values("segment")
-        x = rows["segment"].to_numpy() + (i - (len(present) - 1) / 2) * width
-        coloured = shown.is_coloured(wind, conds.agent(cond))
-        colour = conds.color(cond) if coloured else "0.75"
-        look = (dict(color=colour, marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5, zorder=3) if coloured
-                else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
-        series = [(axes[0, 0], 100 * rows["auc_mean"].to_numpy(), 100 * rows["auc_ci95"].fillna(0).to_numpy())]
-        if has_diff and rows[diff].notna().any():
-            d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
-            series.append((axes[1, 0], d, [np.nan_to_num(d - lo), np.nan_to_num(hi - d)]))
-        for ax, y, err in series:
+    has_diff = numbers[diff].notna().any()
+    fig, axes = plt.subplots(2 if has_diff else 1, len(winds), sharex=True, sharey="row", squeeze=False,
+                             layout="constrained",
+                             figsize=(style.figure_width(len(winds)), 4.2 if has_diff else 2.6))
+    handles, grey = {}, {}
+    for col, wind in enumerate(winds):
+        sub = numbers[numbers["wind"] == wind]
+        present = shown.ranked(wind, [c for c in conds.order if c in set(sub["condition"])])
+        width = 0.8 / max(len(present), 1)
+        for i, cond in enumerate(present):
+            rows = sub[sub["condition"] == cond].sort_values("segment")
+            x = rows["segment"].to_numpy() + (i - (len(present) - 1) / 2) * width
+            coloured = shown.is_coloured(wind, conds.agent(cond))
+            colour = conds.color(cond) if coloured else "0.75"
+            look = (dict(color=colour, marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5, zorder=3) if coloured
+                    else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
+            series = [(axes[0, col], 100 * rows["auc_mean"].to_numpy(),
+                       100 * rows["auc_ci95"].fillna(0).to_numpy())]
+            if has_diff and rows[diff].notna().any():
+                d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
+                series.append((axes[1, col], d, [np.nan_to_num(d - lo), np.nan_to_num(hi - d)]))
+            for ax, y, err in series:
+                if coloured:
+                    ax.errorbar(x, y, yerr=err, **look)
+                else:
+                    ax.plot(x, y, **look)
             if coloured:
-                ax.errorbar(x, y, yerr=err, **look)
+                handles.setdefault(cond, Line2D([], [], color=colour, marker="o", ms=3, lw=0.8,
+                                                label=conds.series(cond)))
             else:
-                ax.plot(x, y, **look)
-        if coloured:
-            handles.append(Line2D([], [], color=colour, marker="o", ms=3, lw=0.8, label=conds.series(cond)))
-        else:
-            grey.append(conds.series(cond))
+                grey.setdefault(cond, conds.series(cond))
+        axes[0, col].set_title("wind " + wind.replace("+", ", vehicle "), fontsize="small")
+        if has_diff:
+            axes[1, col].axhline(0.0, color="0.4", lw=0.8, ls=":")
+        axes[-1, col].set_xlabel("Segment (each wind.segment_steps)")
+        axes[-1, col].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
     axes[0, 0].set_ylim(-3, 103)
     if has_diff:
-        axes[1, 0].axhline(0.0, color="0.4", lw=0.8, ls=":")
         axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
-    axes[-1, 0].set_xlabel("Segment of the schedule (each wind.segment_steps)")
-    axes[-1, 0].xaxis.set_major_locator(MaxNLocator(integer=True))
-    axes[0, 0].set_title(f"Learning per segment, wind {wind}: mean over seeds, bars 95% CI", fontsize="small")
-    note = textwrap.fill("grey, no bars: " + ", ".join(grey), 100) if grey else None
-    fig.legend(handles=handles, fontsize="x-small", ncol=2, frameon=False, loc="outside lower center",
+    fig.suptitle("Learning per segment: mean over seeds, bars 95% CI", fontsize="small")
+    grey = [label for cond, label in grey.items() if cond not in handles]   # grey in every arm
+    note = textwrap.fill("grey, no bars: " + ", ".join(grey), 100 * len(winds)) if grey else None
+    ordered = [handles[c] for c in conds.order if c in handles]
+    fig.legend(handles=ordered, fontsize="x-small", ncol=2 * len(winds), frameon=False, loc="outside lower center",
                title=note, title_fontsize="xx-small")
-    return save(fig, out, f"segment_scores_{wind}")
+    return save(fig, out, "segment_scores")
 
 
 def transfer_gap(seeds: pd.DataFrame, numbers: pd.DataFrame, out: Path) -> list[Path]:
