@@ -288,10 +288,16 @@ def spy_figures(monkeypatch) -> dict:
     return drawn
 
 
-def md_table(path: Path) -> pd.DataFrame:
-    """The Markdown table of a report file, cells as text."""
-    rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in path.read_text().splitlines()
-            if line.startswith("|") and not line.startswith("|---")]
+def md_table(path: Path, which: int = 0) -> pd.DataFrame:
+    """The ``which``-th Markdown table of a report file (0: the first), cells as text."""
+    tables, inside = [], False
+    for line in path.read_text().splitlines():
+        if line.startswith("|") and not line.startswith("|---"):
+            if not inside:
+                tables.append([])
+            tables[-1].append([c.strip() for c in line.strip().strip("|").split("|")])
+        inside = line.startswith("|")
+    rows = tables[which]
     return pd.DataFrame(rows[1:], columns=rows[0])
 
 
@@ -1362,6 +1368,8 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert list(ppo["evals_per_run"]) == [4.0] * 3 and list(ppo["auc_ci95"]) == [0.0] * 3
     shown = md_table(tmp_path / "out" / "segment_scores.md").set_index("Agent")
     assert shown.loc["PPO", "2 (800–1.2k)"] == "12 ± 0 (Δ -50 [-50, -50])"
+    ends = md_table(tmp_path / "out" / "segment_scores.md", 1).set_index("Agent")   # the second: success at the end
+    assert ends.loc["PPO", "2 (800–1.2k)"] == "50 ± 0 (Δ -50 [-50, -50])" and ends.loc["PPO", "1 (400–800)"] == "100 ± 0 (Δ 0 [0, 0])"
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
     assert (tmp_path / "out" / "segment_scores.png").exists()
 

@@ -209,16 +209,17 @@ def segments(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions) -> tuple[
 
 
 def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, reference: str = "reset_all"
-                   ) -> tuple[pd.DataFrame, pd.DataFrame]:
+                   ) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
     """Per condition x wind x segment: the eval-success AUC and end-of-segment success (seed mean, 95% Student-t
     half-width, n; stats.segment_evaluations) and each one's difference to the ``reference`` agent's on the same
-    segment, wind and --by values (95% percentile bootstrap resampling both agents' seeds). Returns (numbers, display:
-    one row per condition x wind, per segment 'AUC ± ci (Δ [lo, hi])' in %)."""
+    segment, wind and --by values (95% percentile bootstrap resampling both agents' seeds). Returns (numbers,
+    displays: per measure "auc" and "end", one row per condition x wind, per segment 'mean ± ci (Δ [lo, hi])' in
+    %)."""
     df = runs[["run_id", "wind", "condition"]].merge(seg, on="run_id")
     refs = {c: baseline_of(conds.table, c, "agent", reference) for c in conds.order}
-    numbers, display = [], []
+    numbers, display = [], {"auc": [], "end": []}
     for wind, cond, g in _ordered_groups(df, conds):
-        shown = {"Agent": cond, "Wind": wind, "Seeds": g["run_id"].nunique()}
+        shown = {m: {"Agent": cond, "Wind": wind, "Seeds": g["run_id"].nunique()} for m in display}
         ref = refs.get(cond)
         theirs = df[(df["wind"] == wind) & (df["condition"] == ref)] if ref is not None else df.iloc[0:0]
         for k, s in g.groupby("segment"):
@@ -231,13 +232,15 @@ def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, ref
                 row.update({f"{m}_mean": mean, f"{m}_ci95": half, "n_seeds": n,
                             f"{m}_vs_{reference}": d, f"{m}_vs_{reference}_low": lo, f"{m}_vs_{reference}_high": hi})
             numbers.append(row)
-            cell = plus_minus(100 * row["auc_mean"], 100 * row["auc_ci95"], 0)
-            if np.isfinite(row[f"auc_vs_{reference}"]):
-                cell += " (Δ " + interval(100 * row[f"auc_vs_{reference}"], 100 * row[f"auc_vs_{reference}_low"],
-                                          100 * row[f"auc_vs_{reference}_high"], 0) + ")"
-            shown[f"{k} ({_steps(row['start'])}–{_steps(row['end_step'])})"] = cell
-        display.append(shown)
-    return pd.DataFrame(numbers), pd.DataFrame(display)
+            for m in display:
+                cell = plus_minus(100 * row[f"{m}_mean"], 100 * row[f"{m}_ci95"], 0)
+                if np.isfinite(row[f"{m}_vs_{reference}"]):
+                    cell += " (Δ " + interval(100 * row[f"{m}_vs_{reference}"], 100 * row[f"{m}_vs_{reference}_low"],
+                                              100 * row[f"{m}_vs_{reference}_high"], 0) + ")"
+                shown[m][f"{k} ({_steps(row['start'])}–{_steps(row['end_step'])})"] = cell
+        for m in display:
+            display[m].append(shown[m])
+    return pd.DataFrame(numbers), {m: pd.DataFrame(rows) for m, rows in display.items()}
 
 
 def at_steps(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, key: str) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -466,8 +469,10 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             f"seeds (evaluations flown under eval.condition = {flown}: 'current' scores the condition being learned); "
             "Δ = the agent's AUC minus reset_all's (a fresh network at every change) on the same segment, 95% "
             "percentile-bootstrap CI resampling both agents' seeds. Δ > 0 on later segments: forward transfer; a Δ "
-            "that falls below 0 and keeps falling with the segment index: loss of plasticity. segment_scores.csv "
-            "also has the success at each segment's end and its difference.\n\n" + markdown(e_display.fillna("–")))
+            "that falls below 0 and keeps falling with the segment index: loss of plasticity.\n\n"
+            "## Learning speed: eval-success AUC within the segment (%)\n\n" + markdown(e_display["auc"].fillna("–"))
+            + "\n\n## Success at the segment's end (%): the last evaluation before the next change\n\n"
+            + markdown(e_display["end"].fillna("–")))
         written_segments = [out / "segment_scores.csv", out / "segment_scores.md"]
     else:
         written_segments = []
