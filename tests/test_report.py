@@ -1414,7 +1414,7 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
                      + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")])   # CBP: flown under one fixed wind
-    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn", "--vs", "redo")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
     assert list(got.index) == ["l2", "redo", "reset_all", "ppo"]          # best re-learner first; no CBP
@@ -1433,6 +1433,12 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     shown = md_table(tmp_path / "out" / "relearning.md").set_index("Agent")
     assert shown.loc["PPO", "Re-learning AUC (%)"] == "56 ± 0" and shown.loc["PPO", "per seed"] == "56, 56"
     assert shown.loc["PPO", "Δ vs reset_all (pp) [95% CI]"] == "-6 [-6, -6]"
+    # --vs redo: each agent against ReDo (75%) on re-learning too; ReDo against itself empty
+    assert got.loc["l2", "delta_vs_redo"] == pytest.approx(0.25) and got.loc["l2", "p_improve_over_redo"] == 1.0
+    assert got.loc["ppo", "delta_vs_redo"] == pytest.approx(-0.1875) and got.loc["ppo", "p_improve_over_redo"] == 0.0
+    assert np.isnan(got.loc["redo", "delta_vs_redo"])
+    versus_redo = [c for c in shown.columns if c.startswith("Δ vs") and "reset_all" not in c]   # its label
+    assert len(versus_redo) == 1 and shown.loc["PPO", versus_redo[0]] == "-19 [-19, -19]"
     corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
     relearn = [1.0, 1.0, 0.75, 0.75, 0.5625, 0.5625]                                   # L2, ReDo, PPO; seeds 0, 1
     for reading, probe, rho in (("probe_first", [0.010, 0.011, 0.030, 0.031, 0.050, 0.051], -16),

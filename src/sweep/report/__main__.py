@@ -121,7 +121,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
     written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals)
-    written += relearning.write(runs, per_run, histories, relearn, conds, out_dir)
+    written += relearning.write(runs, per_run, histories, relearn, conds, out_dir, vs)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))
@@ -164,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vs", metavar="NAME[,NAME...]", type=lambda s: [a for a in s.split(",") if a], default=[],
                         help="also write versus.md/.csv: every agent against each of these reference agents on the "
                              "leaderboard's primary measure (P(> reference) and the difference of means, each with "
-                             "its 95%% CI), e.g. ppo,l2_lr_decay,ppo_target_kl")
+                             "its 95%% CI), e.g. ppo,l2_lr_decay,ppo_target_kl; runs scored on re-learning also "
+                             "get these columns on the re-learning AUC in relearning.md")
     parser.add_argument("--highlight", metavar="NAME[,NAME...]", type=lambda s: [a for a in s.split(",") if a],
                         default=[], help="with more than 6 agents in a panel, draw these agents in colour with "
                         "their bands too (besides PPO, reset_all and the --top agents of each panel; the rest grey)")

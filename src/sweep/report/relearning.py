@@ -88,44 +88,48 @@ def spearman_ci(x, y) -> tuple[float, float, float, int]:
     return float(rho[0]), float(low), float(high), int(len(x))
 
 
-def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, conds, reference: str = REFERENCE
-          ) -> tuple[pd.DataFrame, pd.DataFrame]:
+def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, conds, reference: str = REFERENCE,
+          vs: list[str] = ()) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per condition x wind, sorted by ``relearning`` (mean ± 95% Student-t CI over seeds, per seed): its difference
     to ``reference``'s (95% bootstrap CI resampling both agents' seeds), P(> reference) and P(> PPO) [95% CI],
-    the first segment's AUC, the later segments' end success, and the final readings (``per_run``:
-    stats.per_run_curve_stats)."""
+    against each further agent of ``vs`` (--vs) its difference and P(>), the first segment's AUC, the later
+    segments' end success, and the final readings (``per_run``: stats.per_run_curve_stats)."""
     df = runs.merge(per_run, on="run_id", how="left").merge(relearn, on="run_id", how="inner")
+    extra = [a for a in dict.fromkeys(vs) if a not in (reference, "ppo")]
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
         dw = df[df["wind"] == wind]
         present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
         theirs = {name: dw.loc[dw["condition"] == other, "relearning"] if other is not None else None
-                  for name, other in (("ppo", baseline_of(present, cond, "agent", "ppo")),
-                                      (reference, baseline_of(present, cond, "agent", reference)))}
+                  for name, other in ((a, baseline_of(present, cond, "agent", a) if a in set(present["agent"])
+                                       else None) for a in ("ppo", reference, *extra))}
         mean, half, _ = stats.mean_t_ci(g["relearning"])
-        delta = (stats.mean_diff_ci(g["relearning"], theirs[reference]) if theirs[reference] is not None
-                 else (np.nan,) * 3)
-        p_ref, p_ppo = ((stats.poi_ci(g["relearning"], theirs[name]) if theirs[name] is not None else (np.nan,) * 3)
-                        for name in (reference, "ppo"))
+        delta = {a: stats.mean_diff_ci(g["relearning"], theirs[a]) if theirs[a] is not None else (np.nan,) * 3
+                 for a in theirs}
+        poi = {a: stats.poi_ci(g["relearning"], theirs[a]) if theirs[a] is not None else (np.nan,) * 3
+               for a in theirs}
+        p_ref, p_ppo = poi[reference], poi["ppo"]
         first, first_half, _ = stats.mean_t_ci(g["first_auc"])
         end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
         learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
-               f"delta_vs_{reference}": delta[0], f"delta_vs_{reference}_low": delta[1],
-               f"delta_vs_{reference}_high": delta[2],
-               f"p_improve_over_{reference}": p_ref[0], f"p_improve_over_{reference}_low": p_ref[1],
-               f"p_improve_over_{reference}_high": p_ref[2], "p_improve_over_ppo": p_ppo[0],
-               "p_improve_over_ppo_low": p_ppo[1], "p_improve_over_ppo_high": p_ppo[2],
+               **{f"delta_vs_{a}{end}": delta[a][i] for a in (reference, *extra)
+                  for i, end in enumerate(("", "_low", "_high"))},
+               **{f"p_improve_over_{a}{end}": poi[a][i] for a in (reference, "ppo", *extra)
+                  for i, end in enumerate(("", "_low", "_high"))},
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
                "learned_share": learned, "learned_share_ci95": learned_half,
                "hover_after_median": float(g["hover_after"].median()),
                **{c.final: g[c.final].mean() for c in finals}}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
-                 f"Δ vs {reference} (pp) [95% CI]": interval(*(100 * v for v in delta), 0),
+                 f"Δ vs {reference} (pp) [95% CI]": interval(*(100 * v for v in delta[reference]), 0),
                  f"P(> {reference}) [95% CI]": interval(*p_ref, 2), "P(> PPO) [95% CI]": interval(*p_ppo, 2),
+                 **{k: v for a in extra for k, v in (
+                     (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * v for v in delta[a]), 0)),
+                     (f"P(> {conds.labels.get(a, a)}) [95% CI]", interval(*poi[a], 2)))},
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
                  "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
@@ -162,12 +166,12 @@ READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "prob
 
 
 def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, relearn: pd.DataFrame, conds,
-          out) -> list:
-    """relearning.csv/.md (the table and the probe's correlation with it) and probe_correlation.csv; nothing
-    without runs that per_run scores."""
+          out, vs: list[str] = ()) -> list:
+    """relearning.csv/.md (the table, with columns against the --vs agents, and the probe's correlation with it)
+    and probe_correlation.csv; nothing without runs that per_run scores."""
     if not len(relearn):
         return []
-    numbers, display = table(runs, per_run, relearn, conds)
+    numbers, display = table(runs, per_run, relearn, conds, vs=vs)
     numbers.to_csv(out / "relearning.csv", index=False)
     text = (provenance(runs) + "Re-learning after each change: per run, the mean over the segments after the first "
             "of the in-training eval-success AUC within the segment (segment_scores.md; runs evaluated under "
@@ -175,7 +179,7 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
             f"in the next column. Δ vs {REFERENCE} = the difference of means to {REFERENCE} (a fresh network at every "
             "change) in percentage points, 95% percentile-bootstrap CI resampling both agents' seeds; P(> ...) = "
             "rliable's probability that a run of the agent re-learns better than a run of the reference [95% "
-            "bootstrap CI]. Runs with fewer segments (a shorter run) average fewer changes. First segment AUC = "
+            "bootstrap CI]; with --vs, the same Δ and P against each agent named. Runs with fewer segments (a shorter run) average fewer changes. First segment AUC = "
             "learning from scratch (left out of the measure); success at "
             "segment ends = the mean over the later segments of the last evaluation before the next change; "
             "segments hovered = the share of the later segments with an evaluation at >= 50% success; steps to "
