@@ -26,6 +26,7 @@ ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
 MAIN_COMMIT=9ff7f41
+CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
 AGENTS_EXTRA=${AGENTS_EXTRA:-}   # seeds 8-15: PPO, reset_all and the pilot's top 3, e.g. ppo,reset_all,a,b,c
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/plasticity_study/runs
@@ -50,10 +51,10 @@ case ${1:-} in
   extra-payload) [ -n "$AGENTS_EXTRA" ] || { echo "run.sh: set AGENTS_EXTRA (e.g. ppo,reset_all,a,b,c)" >&2; exit 2; }
                  sweep $MAIN_COMMIT extra-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
                    "agent=$AGENTS_EXTRA" ;;
-  report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all \
+  report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
-                  --out "$ROOT/docs/plasticity_study/pilot") ;;
+                    --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
