@@ -1372,6 +1372,7 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert ends.loc["PPO", "2 (800–1.2k)"] == "50 ± 0 (Δ -50 [-50, -50])" and ends.loc["PPO", "1 (400–800)"] == "100 ± 0 (Δ 0 [0, 0])"
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
     assert (tmp_path / "out" / "segment_scores.png").exists()
+    assert "missing: agent=" not in stdout   # a study of flips only is not asked for the paper's winds and agents
 
 
 def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):

@@ -129,11 +129,15 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
 
 
 def missing_conditions(runs) -> list[str]:
-    """Agent x wind cells of the paper's design (and of whatever else is present) without any run."""
+    """Agent x wind cells without any run: of the agents and winds present, and, in an experiment with the paper's
+    winds (paper, none), of the paper's design (its three agents under both). A study of other changes only (the
+    plasticity study's flip and payload) is not asked for the paper's cells."""
     from sweep.report.style import KNOWN, ordered
 
-    agents = ordered(set(runs["agent"]) | set(KNOWN))
-    winds = sorted(set(runs["wind"]) | {"paper", "none"})
+    paper = {"paper", "none"}
+    design = bool(paper & set(runs["wind"]))
+    agents = ordered(set(runs["agent"]) | (set(KNOWN) if design else set()))
+    winds = sorted(set(runs["wind"]) | (paper if design else set()))
     present = set(zip(runs["agent"], runs["wind"]))
     return [f"agent={a} wind={w} (no finished runs)" for w in winds for a in agents if (a, w) not in present]
 
