@@ -115,10 +115,10 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
-               **{f"delta_vs_{a}{end}": delta[a][i] for a in (reference, *extra)
-                  for i, end in enumerate(("", "_low", "_high"))},
-               **{f"p_improve_over_{a}{end}": poi[a][i] for a in (reference, "ppo", *extra)
-                  for i, end in enumerate(("", "_low", "_high"))},
+               **{f"delta_vs_{a}{suffix}": delta[a][i] for a in (reference, *extra)
+                  for i, suffix in enumerate(("", "_low", "_high"))},
+               **{f"p_improve_over_{a}{suffix}": poi[a][i] for a in (reference, "ppo", *extra)
+                  for i, suffix in enumerate(("", "_low", "_high"))},
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
                "learned_share": learned, "learned_share_ci95": learned_half,
                "hover_after_median": float(g["hover_after"].median()),
@@ -127,8 +127,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
                  f"Δ vs {reference} (pp) [95% CI]": interval(*(100 * v for v in delta[reference]), 0),
                  f"P(> {reference}) [95% CI]": interval(*p_ref, 2), "P(> PPO) [95% CI]": interval(*p_ppo, 2),
-                 **{k: v for a in extra for k, v in (
-                     (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * v for v in delta[a]), 0)),
+                 **{column: cell for a in extra for column, cell in (
+                     (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * x for x in delta[a]), 0)),
                      (f"P(> {conds.labels.get(a, a)}) [95% CI]", interval(*poi[a], 2)))},
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
@@ -179,8 +179,9 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
             f"in the next column. Δ vs {REFERENCE} = the difference of means to {REFERENCE} (a fresh network at every "
             "change) in percentage points, 95% percentile-bootstrap CI resampling both agents' seeds; P(> ...) = "
             "rliable's probability that a run of the agent re-learns better than a run of the reference [95% "
-            "bootstrap CI]; with --vs, the same Δ and P against each agent named. Runs with fewer segments (a shorter run) average fewer changes. First segment AUC = "
-            "learning from scratch (left out of the measure); success at "
+            "bootstrap CI]; with --vs, the same Δ and P against each agent named. Runs with fewer segments (a "
+            "shorter run) average fewer changes. First segment AUC = learning from scratch (left out of the "
+            "measure); success at "
             "segment ends = the mean over the later segments of the last evaluation before the next change; "
             "segments hovered = the share of the later segments with an evaluation at >= 50% success; steps to "
             "hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
