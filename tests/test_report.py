@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -1390,6 +1391,14 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):
     assert sorted((tmp_path / "out").glob("segment_scores*.png")) == [tmp_path / "out" / "segment_scores.png"]
     height, width = image.imread(tmp_path / "out" / "segment_scores.png").shape[:2]
     assert 1700 <= width <= 2200 and height > 900, (width, height)   # both columns of the page, two rows
+    # re-made from the same runs, every file has the same bytes (PDFs carry no creation date): a committed report
+    # changes only where its numbers do
+    time.sleep(1.1)
+    code, stdout, stderr = run_report(uri, tmp_path / "again", "--experiment", "two")
+    assert code == 0, stdout + stderr
+    made = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert made == sorted(p.name for p in (tmp_path / "again").iterdir())
+    assert [n for n in made if (tmp_path / "out" / n).read_bytes() != (tmp_path / "again" / n).read_bytes()] == []
 
 
 RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 400 steps, probe loss at 400, 800, 1200)
