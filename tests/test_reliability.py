@@ -189,16 +189,20 @@ def test_slurm_preset_composes(tmp_path, monkeypatch):
 
 
 def test_sweep_summary_counts_only_the_job_dirs_this_sweep_wrote(tmp_path, capsys):
-    """A sweep re-invoked in the same dir with fewer jobs: the earlier invocation's killed job is not this one's."""
+    """A sweep re-invoked in the same dir with fewer jobs: the earlier invocation's killed job is not this one's. A
+    job this sweep resumed in its existing dir counts: Hydra rewrote the config files in its old ``.hydra``."""
     from sweep.status import report_sweep, write_status
 
     sweep = tmp_path / "sweep"
+    old = time.time() - 3600
     for job, status in (("0", "FINISHED"), ("1", "RUNNING")):  # the earlier invocation: job 1 killed mid-run
         (sweep / job / ".hydra").mkdir(parents=True)
+        (sweep / job / ".hydra" / "config.yaml").write_text(f"seed: {job}\n")
         write_status(sweep / job, status, overrides=[f"seed={job}"])
-    old = time.time() - 3600
-    os.utime(sweep / "1" / ".hydra", (old, old))
-    report_sweep(sweep, "sqlite:///x.db", "mlflow ui", since=time.time() - 60)   # this one re-ran job 0 alone
+        for path in (sweep / job / ".hydra" / "config.yaml", sweep / job / ".hydra"):
+            os.utime(path, (old, old))
+    (sweep / "0" / ".hydra" / "config.yaml").write_text("seed: 0\n")   # this one re-ran job 0 alone, in its dir
+    report_sweep(sweep, "sqlite:///x.db", "mlflow ui", since=time.time() - 60)
     out = capsys.readouterr().out
     assert "1/1 jobs finished" in out and "1 job dirs of an earlier sweep in this dir not counted (1)" in out
     with pytest.raises(SystemExit):  # without the sweep's start every dir counts, the stale RUNNING too

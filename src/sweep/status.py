@@ -27,16 +27,22 @@ def read_status(job_dir: Path) -> dict | None:
     return read_json(job_dir / "status.json") or None
 
 
+def written_at(folder: Path) -> float:
+    """The latest modification time of ``folder`` and the files in it (epoch seconds)."""
+    return max([folder.stat().st_mtime, *(f.stat().st_mtime for f in folder.iterdir())])
+
+
 def report_sweep(sweep_dir: Path, uri: str, ui: str, runs_url: str | None = None, since: float | None = None) -> None:
     """Print one line per failed job and where results are; exit 1 if any job did not finish.
 
-    ``since``: the sweep's start (epoch seconds). Only job dirs that this sweep wrote (``.hydra`` written after
-    it) are counted: a sweep re-invoked in the same dir with fewer jobs leaves the earlier invocation's extra job
-    dirs, whose stale states (a killed job's RUNNING) would otherwise make a finished sweep exit 1.
+    ``since``: the sweep's start (epoch seconds). Only job dirs that this sweep wrote (``.hydra`` or a file in it
+    written after it: Hydra rewrites a resumed job's config files in the existing dir) are counted: a sweep
+    re-invoked in the same dir with fewer jobs leaves the earlier invocation's extra job dirs, whose stale states
+    (a killed job's RUNNING) would otherwise make a finished sweep exit 1.
     """
     jobs = sorted((p for p in sweep_dir.iterdir() if p.is_dir() and (p / ".hydra").exists()),
                   key=lambda p: (len(p.name), p.name)) if sweep_dir.exists() else []
-    earlier = [p for p in jobs if since is not None and (p / ".hydra").stat().st_mtime < since]
+    earlier = [p for p in jobs if since is not None and written_at(p / ".hydra") < since]
     jobs = [p for p in jobs if p not in earlier]
     statuses = [(job, read_status(job) or {"status": "UNKNOWN", "reason": "no status.json (job died?)"}) for job in jobs]
     bad = [(job, s) for job, s in statuses if s["status"] != "FINISHED"]
