@@ -1376,6 +1376,25 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert "missing: agent=" not in stdout   # a study of flips only is not asked for the paper's winds and agents
 
 
+def test_a_final_evaluation_past_the_run_under_the_next_condition_is_left_out():
+    """Segments of 400 steps, a run of 1200 whose last update ends at 1210 (a rollout is not cut). Its final
+    evaluation, at 1210: under eval.condition=current it flew under segment 3's condition (the one at step 1209),
+    never trained on, and is left out (segment 2 ends with its evaluation at 1200); under a fixed condition it is
+    the last segment's end."""
+    from sweep.report import stats
+
+    values = [0.0, 0.5, 1.0, 1.0] * 3 + [0.0]
+    steps = [100 * (i + 1) for i in range(12)] + [1210]
+    histories = pd.DataFrame({"run_id": "r", "key": "eval/success_rate", "step": steps, "value": values})
+    for condition, last_end, last_evals in (("current", 1.0, 4), ("fixed", 0.0, 5)):
+        runs = pd.DataFrame({"run_id": ["r"], "segment_steps": [400.0], "total_timesteps": [1200],
+                             "eval_condition": [condition]})
+        got = stats.segment_evaluations(histories, runs).set_index("segment")
+        assert list(got.index) == [0, 1, 2], condition
+        assert (got.loc[2, "end"], got.loc[2, "n_evals"]) == (last_end, last_evals), condition
+        assert got.loc[0, "auc"] == 0.625
+
+
 def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):
     """Two changes in one experiment (a wind flip, a payload in still air): one segment_scores figure two columns
     wide, each change's numbers in the table under its own arm."""

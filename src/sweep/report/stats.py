@@ -136,7 +136,10 @@ def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame
 def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
     """Per run and segment k (the k-th hold of the run's ``wind.segment_steps``; a vehicle schedule on another clock is
     not split by it: give it the same ``segment_steps``): the in-training evaluations logged
-    at steps in (k S, (k+1) S] (the final evaluation counts in the last segment). ``auc``: the area under the
+    at steps in (k S, (k+1) S]. A run's last update ends past ``train.total_timesteps`` (a rollout is not cut), so
+    its final evaluation may be logged in the next segment: under a fixed condition it counts in the last segment;
+    under eval.condition=current it flew under that next condition (the one at its step - 1: evaluate.py), which the
+    run never learned, and is left out. ``auc``: the area under the
     eval-success curve within the segment, normalised by its length (the evaluations are evenly spaced, so their
     mean); ``end``: the success of the segment's last evaluation; ``n_evals``; ``hover_after``: the timesteps from
     the segment's start to its first evaluation at >= HOVER success (NaN if none). Segments with no evaluation are
@@ -150,9 +153,12 @@ def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataF
             continue
         steps, values = h["step"].to_numpy(dtype=float), h["value"].to_numpy(dtype=float)
         total = pd.to_numeric(getattr(run, "total_timesteps", None), errors="coerce")
-        if np.isfinite(total):
+        current = getattr(run, "eval_condition", None) == "current"
+        if np.isfinite(total) and not current:
             steps = np.minimum(steps, total)
         segment = np.ceil(steps / length).astype(int) - 1
+        if np.isfinite(total) and current:
+            segment[segment >= np.ceil(total / length)] = -1   # flown under a condition the run did not train on
         for k in np.unique(segment[segment >= 0]):
             v, at = values[segment == k], steps[segment == k]
             hovered = at[v >= HOVER]
