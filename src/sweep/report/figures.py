@@ -271,7 +271,7 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
                                                 label=conds.series(cond)))
             else:
                 grey.setdefault(cond, conds.series(cond))
-        axes[0, col].set_title("wind " + wind.replace("+", ", vehicle "), fontsize="small")
+        axes[0, col].set_title(style.arm_title(wind), fontsize="small")
         if has_diff:
             axes[1, col].axhline(0.0, color="0.4", lw=0.8, ls=":")
         axes[-1, col].set_xlabel("Segment (each wind.segment_steps)")

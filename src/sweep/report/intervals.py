@@ -73,7 +73,7 @@ def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
     for wind in sorted(df["wind"].unique(), key=lambda w: (w != "paper", w)):
         dw = df[df["wind"] == wind]
         for title, shown in conds.panels(dw["condition"]):
-            arm = f"wind {wind}" + (f", {title}" if title else "")
+            arm = style.arm_title(wind) + (f", {title}" if title else "")
             panel = []
             for cond in shown:
                 point, lo, hi, n = estimate(dw.loc[dw["condition"] == cond, measure.column], measure.statistic)

@@ -53,6 +53,11 @@ def dashes(agent: str):
     return DASHES.get(agent, OTHER_DASH)
 
 
+def arm_title(wind: str) -> str:
+    """A panel's title for an arm (metrics.condition_arm): 'wind flip', 'wind none, vehicle payload'."""
+    return "wind " + wind.replace("+", ", vehicle ")
+
+
 def figure_width(panels: int) -> float:
     """One column for one panel, both columns for more."""
     return COLUMN_WIDTH if panels <= 1 else PAGE_WIDTH
