@@ -1395,9 +1395,10 @@ def test_a_final_evaluation_past_the_run_under_the_next_condition_is_left_out():
         assert got.loc[0, "auc"] == 0.625
 
 
-def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):
+def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, monkeypatch):
     """Two changes in one experiment (a wind flip, a payload in still air): one segment_scores figure two columns
     wide, each change's numbers in the table under its own arm."""
+    monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)   # matplotlib would stamp that date alike in both
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     client = MlflowClient(uri)
     runs = [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()]
@@ -1407,6 +1408,8 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path):
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "segment_scores.csv")
     assert set(got["wind"]) == {"flip", "none+payload"}
+    shown = md_table(tmp_path / "out" / "segment_scores.md")
+    assert sorted(shown["Wind"]) == ["flip", "flip", "none+payload", "none+payload"]   # PPO and reset_all per arm
     assert sorted((tmp_path / "out").glob("segment_scores*.png")) == [tmp_path / "out" / "segment_scores.png"]
     height, width = image.imread(tmp_path / "out" / "segment_scores.png").shape[:2]
     assert 1700 <= width <= 2200 and height > 900, (width, height)   # both columns of the page, two rows
@@ -1443,7 +1446,7 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
                      + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")])   # CBP: flown under one fixed wind
-    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn", "--vs", "redo")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn", "--vs", "redo,ppo")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
     assert list(got.index) == ["l2", "redo", "reset_all", "ppo"]          # best re-learner first; no CBP
@@ -1466,7 +1469,9 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     assert got.loc["l2", "delta_vs_redo"] == pytest.approx(0.25) and got.loc["l2", "p_improve_over_redo"] == 1.0
     assert got.loc["ppo", "delta_vs_redo"] == pytest.approx(-0.1875) and got.loc["ppo", "p_improve_over_redo"] == 0.0
     assert np.isnan(got.loc["redo", "delta_vs_redo"])
-    versus_redo = [c for c in shown.columns if c.startswith("Δ vs") and "reset_all" not in c]   # its label
+    assert got.loc["l2", "delta_vs_ppo"] == pytest.approx(0.4375) and np.isnan(got.loc["ppo", "delta_vs_ppo"])
+    assert shown.loc["L2 + PPO", "Δ vs PPO (pp) [95% CI]"] == "44 [44, 44]"
+    versus_redo = [c for c in shown.columns if c.startswith("Δ vs") and not c.startswith(("Δ vs reset_all", "Δ vs PPO"))]
     assert len(versus_redo) == 1 and shown.loc["PPO", versus_redo[0]] == "-19 [-19, -19]"
     corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
     relearn = [1.0, 1.0, 0.75, 0.75, 0.5625, 0.5625]                                   # L2, ReDo, PPO; seeds 0, 1

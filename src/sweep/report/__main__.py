@@ -94,9 +94,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
             written += figures.curve_figure(runs, histories, wind, stem, conds, shown, out_dir)
     for wind in sorted(runs["wind"].unique()):
         written += figures.performance_profile(runs, late, wind, conds, shown, out_dir)
+    scores = None   # per segment against reset_all: the figure here, the table in write_tables
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
-        numbers, _ = tables.segment_scores(runs, evals, conds)
-        written += figures.segment_scores(numbers, conds, shown, out_dir)
+        scores = tables.segment_scores(runs, evals, conds)
+        written += figures.segment_scores(scores[0], conds, shown, out_dir)
 
     wind, picked, policy = figures.eval_runs(runs)
     coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]
@@ -120,7 +121,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.flights_3d(trajs, picked, wind, conds, out_dir, policy)
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
-    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals)
+    written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals, scores)
     written += relearning.write(runs, per_run, histories, relearn, conds, out_dir, vs)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())

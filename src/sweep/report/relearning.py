@@ -96,6 +96,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
     segments' end success, and the final readings (``per_run``: stats.per_run_curve_stats)."""
     df = runs.merge(per_run, on="run_id", how="left").merge(relearn, on="run_id", how="inner")
     extra = [a for a in dict.fromkeys(vs) if a not in (reference, "ppo")]
+    delta_ppo = "ppo" in vs   # P(> PPO) is always there; --vs ppo adds the difference too
     numbers, display = [], []
     for wind, cond, g in _ordered_groups(df, conds):
         dw = df[df["wind"] == wind]
@@ -115,7 +116,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
-               **{f"delta_vs_{a}{suffix}": delta[a][i] for a in (reference, *extra)
+               **{f"delta_vs_{a}{suffix}": delta[a][i] for a in (reference, *(["ppo"] if delta_ppo else []), *extra)
                   for i, suffix in enumerate(("", "_low", "_high"))},
                **{f"p_improve_over_{a}{suffix}": poi[a][i] for a in (reference, "ppo", *extra)
                   for i, suffix in enumerate(("", "_low", "_high"))},
@@ -127,6 +128,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
                  f"Δ vs {reference} (pp) [95% CI]": interval(*(100 * v for v in delta[reference]), 0),
                  f"P(> {reference}) [95% CI]": interval(*p_ref, 2), "P(> PPO) [95% CI]": interval(*p_ppo, 2),
+                 **({"Δ vs PPO (pp) [95% CI]": interval(*(100 * x for x in delta["ppo"]), 0)} if delta_ppo else {}),
                  **{column: cell for a in extra for column, cell in (
                      (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * x for x in delta[a]), 0)),
                      (f"P(> {conds.labels.get(a, a)}) [95% CI]", interval(*poi[a], 2)))},

@@ -399,11 +399,12 @@ def provenance(runs: pd.DataFrame) -> str:
 def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions, out: Path,
                  baseline: tuple[str, str] | None = None, at: list[int] = (),
                  late: pd.DataFrame | None = None, vs: list[str] = (),
-                 per_run: pd.DataFrame | None = None, evals: pd.DataFrame | None = None) -> list[Path]:
+                 per_run: pd.DataFrame | None = None, evals: pd.DataFrame | None = None,
+                 scores: tuple | None = None) -> list[Path]:
     """Every table of the report; ``late`` is stats.late_evaluations(histories), computed by the caller once for
     the leaderboard and the performance profile (computed here when not given); ``vs``: reference agents of
     versus.md (none: no such table); ``per_run`` is stats.per_run_curve_stats(histories), likewise; ``evals`` is
-    stats.segment_evaluations(histories, runs), likewise."""
+    stats.segment_evaluations(histories, runs), likewise, and ``scores`` segment_scores(runs, evals, conds)."""
     per_run = stats.per_run_curve_stats(histories) if per_run is None else per_run
     t3_numbers, t3_display = table3(runs, per_run, conds)
     t3_numbers.to_csv(out / "table3.csv", index=False)
@@ -459,7 +460,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
         "after each change.\n\n" + markdown(seg_display.fillna("–")))
     evals = stats.segment_evaluations(histories, runs) if evals is None else evals
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():   # in-training evaluations per segment
-        e_numbers, e_display = segment_scores(runs, evals, conds)
+        e_numbers, e_display = segment_scores(runs, evals, conds) if scores is None else scores
         e_numbers.to_csv(out / "segment_scores.csv", index=False)
         flown = ", ".join(sorted({str(v) for v in runs.get("eval_condition", pd.Series(dtype=object)).dropna()})) or "fixed"
         (out / "segment_scores.md").write_text(
