@@ -230,7 +230,7 @@ def test_l2_optimizer_differs_from_ppo_only_in_the_l2_term(mode, optimizer):
     keys = set(base.defaults) - {"weight_decay", "decoupled_weight_decay"}  # the L2 term itself
     for group in new.param_groups:
         assert {k: group[k] for k in keys} == {k: base.param_groups[0][k] for k in keys}
-    assert base.param_groups[0]["eps"] == 1e-5
+    assert base.param_groups[0]["eps"] == 1e-5 and base.param_groups[0]["fused"] is True   # networks.adam_kwargs
     assert base.param_groups[0]["weight_decay"] == 0
     decayed, plain = new.param_groups
     assert decayed["weight_decay"] == l2_cfg.l2.coef and plain["weight_decay"] == 0.0

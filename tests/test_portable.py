@@ -1,8 +1,9 @@
 """train.portable (sweep/portable.py): the setting reaches torch (MKL, ATen), XLA, numba and NumPy before they
 compute, in a fresh process as `python -m sweep` starts one; the command line decides it; a config asking for the
 other mode is one error line; numba's cache never hands a host-tuned build to a portable run; runs carry the CPU
-and the mode as tags. Whether the numbers themselves are equal on two CPU models is not tested here (README,
-Determinism); tests/test_reference_history.py compares them bitwise on the CPU that wrote its file."""
+and the mode as tags; Adam's step does not depend on MKL's code path. Whether the numbers themselves are equal on
+two CPU models is not tested here (README, Determinism); tests/test_reference_history.py compares them bitwise on
+the CPU that wrote its file (and on any other with REFERENCE_BITWISE=1)."""
 from __future__ import annotations
 
 import json
@@ -152,6 +153,44 @@ def test_numba_never_loads_a_host_tuned_build_into_a_portable_run(tmp_path):
     assert call("0") == (1, 0)  # native again: loaded
     assert call("1") == (0, 1)  # portable: not the native build
     assert call("1") == (1, 0)  # portable again: its own build
+
+
+# 50 Adam steps on fixed gradients, in a portable process whose MKL branch is then set by MKL_CBWR (MKL reads it at
+# its first call): the md5 of the parameters, with the project's Adam (networks.adam_kwargs) and with torch's default.
+ADAM_STEPS = r"""
+import sys, os, hashlib
+import sweep
+os.environ["MKL_CBWR"] = sys.argv[1]
+import numpy as np, torch
+from sweep.agents.networks import adam_kwargs
+torch.set_num_threads(1)
+out = []
+for kwargs in (adam_kwargs(1e-5), {"eps": 1e-5}):
+    rng = np.random.default_rng(0)
+    p = torch.nn.Parameter(torch.from_numpy(rng.standard_normal(4096).astype(np.float32)))
+    opt = torch.optim.Adam([p], lr=3e-4, **kwargs)
+    for _ in range(50):
+        p.grad = torch.from_numpy(rng.standard_normal(4096).astype(np.float32) * np.float32(10.0 ** rng.integers(-6, 2)))
+        opt.step()
+    out.append(hashlib.md5(p.detach().numpy().tobytes()).hexdigest())
+print(*out)
+"""
+
+
+def test_adam_steps_the_same_whatever_mkl_branch_computes_it():
+    """The project's Adam (fused: the CPU's exactly rounded square root) does not go through MKL: its steps are
+    equal under MKL's portable branch and its AVX2 and SSE4.2 ones. torch's default Adam takes the square root
+    from MKL's vector math, which moves with the branch (and, in the portable branch, parted an AMD EPYC and an
+    Intel Xeon after one update; README, Determinism), so the comparison can fail."""
+    def steps(branch: str) -> list[str]:
+        proc = subprocess.run([sys.executable, "-c", ADAM_STEPS, branch], env=clean_env(), capture_output=True,
+                              text=True, timeout=300, cwd=ROOT)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout.split()
+
+    (fused, loop), *others = [steps(b) for b in ("COMPATIBLE", "AVX2", "SSE4_2")]
+    assert all(f == fused for f, _ in others)
+    assert any(lp != loop for _, lp in others)   # MKL's branch does change torch's default Adam
 
 
 def test_a_run_records_the_cpu_and_the_mode_as_tags(tmp_path, monkeypatch):

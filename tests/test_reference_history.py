@@ -106,14 +106,27 @@ def test_history_equals_the_stored_reference(name, tmp_path):
     for key in want:
         steps_got, steps_want = [s for s, _ in got[key]], [s for s, _ in want[key]]
         assert steps_got == steps_want, f"{name} {key}: logged at {steps_got}, reference {steps_want}"
-        for (step, value), (_, ref) in zip(got[key], want[key]):
-            if same_cpu:
-                assert value == ref or (math.isnan(value) and math.isnan(ref)), (
-                    f"{name} {key} at step {step}: {value!r} != reference {ref!r} (bitwise: the file's CPU, or "
-                    f"REFERENCE_BITWISE=1 on this one: {cpu_signature()[:60]!r}, the file's {stored['cpu'][:60]!r})")
-            else:
-                rtol = OTHER_CPU_PROBE_RTOL if key.startswith("plasticity/probe") else OTHER_CPU_RTOL
+    if same_cpu:   # where the run first parts from the reference, and every key that differs there
+        parted = sorted((d[0], key, d[1], d[2]) for key in want if (d := first_difference(got[key], want[key])))
+        first = [f"{key} {value!r} != reference {ref!r}" for step, key, value, ref in parted if step == parted[0][0]] \
+            if parted else []
+        assert not parted, (
+            f"{name}: {len(parted)} of {len(want)} keys differ, first at step {parted[0][0]}: {'; '.join(first)[:1500]} "
+            f"(bitwise: the file's CPU, or REFERENCE_BITWISE=1 on this one: {cpu_signature()[:60]!r}, the file's "
+            f"{stored['cpu'][:60]!r})")
+    else:
+        for key in want:
+            rtol = OTHER_CPU_PROBE_RTOL if key.startswith("plasticity/probe") else OTHER_CPU_RTOL
+            for (step, value), (_, ref) in zip(got[key], want[key]):
                 assert value == pytest.approx(ref, rel=rtol, abs=1e-9, nan_ok=True), f"{name} {key} at {step}"
+
+
+def first_difference(got: list[list[float]], want: list[list[float]]) -> tuple[float, float, float] | None:
+    """(step, value, reference) where a history first differs from its reference (bitwise; NaN equals NaN)."""
+    for (step, value), (_, ref) in zip(got, want):
+        if not (value == ref or (math.isnan(value) and math.isnan(ref))):
+            return step, value, ref
+    return None
 
 
 if __name__ == "__main__" and sys.argv[1:2] == ["--one"]:  # one history, in this (fresh) process

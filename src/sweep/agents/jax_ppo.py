@@ -64,7 +64,8 @@ from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 
 from sweep.agents import rollout  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
-from sweep.agents.networks import LAYER_NORM_EPS, Network, actor_critic, policy_class, remedy_rng  # noqa: E402
+from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_critic, adam_kwargs, policy_class,  # noqa: E402
+                                  remedy_rng)
 from sweep.agents.onpolicy import StepwiseLearning  # noqa: E402
 from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
@@ -192,7 +193,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         cls = policy_class(self.layer_norm)
         cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
         return cls(self.observation_space, self.action_space, self.lr_schedule, net_arch={"pi": arch, "vf": arch},
-                   activation_fn=SB3_ACTIVATIONS[self.activation], optimizer_kwargs={"eps": self.adam_eps})
+                   activation_fn=SB3_ACTIVATIONS[self.activation], optimizer_kwargs=adam_kwargs(self.adam_eps))
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
@@ -426,7 +427,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
                     max_grad_norm=self.max_grad_norm, target_kl=self.target_kl, device="cpu",
                     policy_kwargs={"net_arch": {"pi": arch, "vf": arch},
                                    "activation_fn": SB3_ACTIVATIONS[self.activation],
-                                   "optimizer_kwargs": {"eps": self.adam_eps}})
+                                   "optimizer_kwargs": adam_kwargs(self.adam_eps)})
         model.policy.load_state_dict({k: torch.as_tensor(v) for k, v in self.parameter_arrays().items()})
         model.num_timesteps = self.num_timesteps
         return model

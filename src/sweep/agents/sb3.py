@@ -17,7 +17,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.learner import Hidden
-from sweep.agents.networks import actor_critic, policy_class, remedy_rng
+from sweep.agents.networks import actor_critic, adam_kwargs, policy_class, remedy_rng
 from sweep.agents.onpolicy import StepwiseLearning
 from sweep.plasticity.l2 import l2_optimizer
 from sweep.training.records import UpdateRecord
@@ -31,7 +31,7 @@ class SB3PPO(StepwiseLearning, PPO):
                     seed: int, layer_norm: bool = False) -> "SB3PPO":
         policy_kwargs = {"net_arch": {"pi": list(net_arch), "vf": list(net_arch)},
                          "activation_fn": ACTIVATIONS[activation],
-                         "optimizer_class": torch.optim.Adam, "optimizer_kwargs": {"eps": float(adam_eps)}}
+                         "optimizer_class": torch.optim.Adam, "optimizer_kwargs": adam_kwargs(adam_eps)}
         model = cls(policy_class(layer_norm), env, policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0,
                     **ppo)
         model.networks = actor_critic(len(net_arch), layer_norm)
@@ -129,7 +129,8 @@ class SB3PPO(StepwiseLearning, PPO):
         loss = (-(advantages * ratio).mean() + self.vf_coef * F.mse_loss(returns, values.flatten())
                 - self.ent_coef * (entropy.mean() if entropy is not None else -log_prob.mean()))
         grads = torch.autograd.grad(loss, [p for p in self.policy.parameters() if p.requires_grad], allow_unused=True)
-        return float(torch.sqrt(sum((g ** 2).sum() for g in grads if g is not None)))
+        squares = float(sum((g ** 2).sum() for g in grads if g is not None))   # a float32 value
+        return float(np.sqrt(np.float32(squares)))   # exactly rounded, as XLA's; torch.sqrt is MKL's (adam_kwargs)
 
     # ---- checkpoints ---------------------------------------------------------------------------------
     def learner_state(self) -> dict[str, Any]:

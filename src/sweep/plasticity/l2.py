@@ -5,7 +5,7 @@ penalty (coef/2)*||theta||^2 on the loss, before Adam's normalisation. ``decoupl
 decay applied outside Adam's moments). ``params`` chooses the penalized networks (policy = actor MLP +
 action head, value = critic MLP + value head, log_std = the Gaussian's log std) and ``biases`` whether
 bias vectors are included; everything else sits in a second param group with weight_decay 0.
-Adam's eps and betas are copied from SB3's optimizer, so the only difference from plain PPO is L2.
+Adam's eps, betas and kernel (fused) are copied from SB3's optimizer, so the only difference from plain PPO is L2.
 
 ``anchor=init`` (``sweep.plasticity.l2_init``) pulls toward the initial parameters theta_0 instead of 0: the
 penalty (coef/2)*||theta - theta_0||^2, coupled (g += coef*(theta - theta_0)) or decoupled
@@ -62,7 +62,7 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
             names.append(name)
         else:
             rest.append(p)
-    kwargs = {"lr": old["lr"], "betas": old["betas"], "eps": old["eps"]}
+    kwargs = {"lr": old["lr"], "betas": old["betas"], "eps": old["eps"], "fused": old.get("fused")}
     if anchors is not None:
         group = {"params": decay, "anchors": [anchors[n].detach().clone() for n in names], "anchor_coef": coef,
                  "anchor_mode": mode}

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from sweep.agents.learner import Learner
-from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, fresh_parameters, orthogonal
+from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, adam_kwargs, fresh_parameters, orthogonal
 from sweep.training.hooks import Hook
 from sweep.training.records import Condition
 
@@ -62,7 +62,7 @@ def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batc
         y = y @ w.T
         y = np.tanh(y) if layer != net.head else y
     targets = torch.as_tensor((y - y.mean(0)) / (y.std(0) + 1e-8), dtype=torch.float32)
-    optimizer = torch.optim.Adam(params.values(), lr=lr)
+    optimizer = torch.optim.Adam(params.values(), lr=lr, **adam_kwargs(1e-8))   # torch's default eps
     losses = np.empty(steps)
     for step in range(steps):
         idx = torch.as_tensor(rng.integers(0, len(obs), min(batch_size, len(obs))))
