@@ -18,14 +18,15 @@
 # same jobs). PILOT_COMMIT: the code of the pilot (experiment=plasticity as committed). The pilot flies 4M segments, the
 # longest the issue allows, so that reset_all's fresh networks show whether they hover by 2M, 3M or 4M into a segment
 # (a 3M pilot could not tell whether 4M is needed). It measured 3M to be enough (docs/plasticity_study.md: 17 of
-# the 18 fresh networks that hovered within 4M did so by 3M), so the main phases run the preset as committed:
-# MAIN_COMMIT, the pilot's code (no training code changed since), 6 segments of 3M.
+# the 18 fresh networks that hovered within 4M did so by 3M), so the main phases run the preset as committed,
+# 6 segments of 3M, at MAIN_COMMIT: the pilot's code plus the fused torch Adam (README, Determinism), which makes
+# the probe's readings portable across CPU vendors and leaves the JAX learner's training as it was.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
-MAIN_COMMIT=9ff7f41
+MAIN_COMMIT=01b8be3
 CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
 AGENTS_EXTRA=${AGENTS_EXTRA:-}   # seeds 8-15: PPO, reset_all and the pilot's top 3, e.g. ppo,reset_all,a,b,c
 PY=${PYTHON:-$ROOT/.venv/bin/python}
