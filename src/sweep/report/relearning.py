@@ -102,8 +102,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         dw = df[df["wind"] == wind]
         present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
         theirs = {name: dw.loc[dw["condition"] == other, "relearning"] if other is not None else None
-                  for name, other in ((a, baseline_of(present, cond, "agent", a) if a in set(present["agent"])
-                                       else None) for a in ("ppo", reference, *extra))}
+                  for name, other in ((a, baseline_of(present, cond, "agent", a)) for a in ("ppo", reference, *extra))}
         mean, half, _ = stats.mean_t_ci(g["relearning"])
         delta = {a: stats.mean_diff_ci(g["relearning"], theirs[a]) if theirs[a] is not None else (np.nan,) * 3
                  for a in theirs}
