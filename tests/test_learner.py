@@ -8,6 +8,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import torch
 from stable_baselines3.common.utils import configure_logger
 
 from conftest import ROOT
@@ -157,6 +158,20 @@ def test_remedy_generator_is_the_learners_own_and_checkpointed(name):
     assert np.array_equal(np.random.get_state()[1], global_state)  # the global RNG was not touched
     other = pair(seed=1)[LEARNERS.index(name)]
     assert not np.array_equal(other.rng.standard_normal(4), pair()[LEARNERS.index(name)].rng.standard_normal(4))
+
+
+def test_a_checkpoint_written_before_the_fused_adam_resumes_with_it():
+    """torch's load_state_dict would take a checkpoint's ``fused: None`` (the loop Adam, MKL's square root); the
+    learner keeps the kernel it was built with (networks.adam_kwargs), and the moments load as saved."""
+    model = trained()["sb3"]
+    state = model.learner_state()
+    for group in state["optimizer"]["param_groups"]:
+        group["fused"] = None
+    model.load_learner_state(state)
+    assert all(group["fused"] is True for group in model.policy.optimizer.param_groups)
+    saved = state["optimizer"]["state"]
+    assert all(torch.equal(model.policy.optimizer.state_dict()["state"][i]["exp_avg_sq"], saved[i]["exp_avg_sq"])
+               for i in saved)
 
 
 def test_fresh_parameters_draw_sb3s_init_distribution():

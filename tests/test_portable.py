@@ -179,7 +179,7 @@ print(*out)
 
 def test_adam_steps_the_same_whatever_mkl_branch_computes_it():
     """The project's Adam (fused: the CPU's exactly rounded square root) does not go through MKL: its steps are
-    equal under MKL's portable branch and its AVX2 and SSE4.2 ones. torch's default Adam takes the square root
+    equal under MKL's portable branch and its AVX2, SSE4.2 and host (AUTO) ones. torch's default Adam takes the square root
     from MKL's vector math, which moves with the branch (and, in the portable branch, parted an AMD EPYC and an
     Intel Xeon after one update; README, Determinism), so the comparison can fail."""
     def steps(branch: str) -> list[str]:
@@ -188,9 +188,9 @@ def test_adam_steps_the_same_whatever_mkl_branch_computes_it():
         assert proc.returncode == 0, proc.stderr[-2000:]
         return proc.stdout.split()
 
-    (fused, loop), *others = [steps(b) for b in ("COMPATIBLE", "AVX2", "SSE4_2")]
+    (fused, loop), *others = [steps(b) for b in ("COMPATIBLE", "AVX2", "SSE4_2", "AUTO")]
     assert all(f == fused for f, _ in others)
-    assert any(lp != loop for _, lp in others)   # MKL's branch does change torch's default Adam
+    assert any(lp != loop for _, lp in others)   # MKL's branch does change torch's default Adam (AVX2, AUTO here)
 
 
 def test_a_run_records_the_cpu_and_the_mode_as_tags(tmp_path, monkeypatch):

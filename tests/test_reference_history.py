@@ -8,11 +8,12 @@ in tests/data/reference_histories.json (written in portable mode; the file recor
 
 Bitwise on the CPU model that wrote the file. On another CPU the values must agree to ``OTHER_CPU_RTOL``, the
 plasticity probe's losses to ``OTHER_CPU_PROBE_RTOL`` (500 Adam steps on random targets amplify last-bit
-differences): portable mode pins every library's code path, but bitwise equality across CPU models is not yet
-shown (README, "Determinism"; an emulated AVX2 CPU differed from the first update on, through instructions the
-emulator computes exactly where a CPU estimates). When it is, this fallback goes. To test it on a machine whose CPU
-differs from the file's (the check issue 32 waits for), ask for bitwise equality there:
+differences), unless ``REFERENCE_BITWISE=1`` asks for bitwise equality there:
     REFERENCE_BITWISE=1 python -m pytest tests/test_reference_history.py
+which names the step at which a run parts and every metric that differs there. Run so on an Intel Xeon against
+references written on an AMD EPYC, it found the JAX runs equal but for the probe, and SB3's parting after its first
+Adam step (README, Determinism); the references were then rewritten on the Intel Xeon. The tolerance goes once a
+second CPU model has confirmed them bitwise.
 
 Regenerate only for an intended change of behaviour, and say so in the commit:
     python tests/test_reference_history.py --write

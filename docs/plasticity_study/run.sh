@@ -19,8 +19,8 @@
 # longest the issue allows, so that reset_all's fresh networks show whether they hover by 2M, 3M or 4M into a segment
 # (a 3M pilot could not tell whether 4M is needed). It measured 3M to be enough (docs/plasticity_study.md: 17 of
 # the 18 fresh networks that hovered within 4M did so by 3M), so the main phases run the preset as committed,
-# 6 segments of 3M, at MAIN_COMMIT: the pilot's code plus the fused torch Adam (README, Determinism), which makes
-# the probe's readings portable across CPU vendors and leaves the JAX learner's training as it was.
+# 6 segments of 3M, at MAIN_COMMIT: the pilot's training code plus the fused torch Adam (README, Determinism),
+# which should make the probe's readings portable across CPU vendors and leaves the JAX learner's training as it was.
 set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)

@@ -30,7 +30,8 @@ LAYER_NORM_EPS = 1e-5  # torch.nn.LayerNorm's default
 
 
 def adam_kwargs(eps: float) -> dict:
-    """torch Adam's arguments for SB3's policy optimizer and the probe: ``eps`` and ``fused=True``. The fused
+    """torch Adam's arguments wherever the project builds one (SB3's policy optimizer, the SB3 policies of the JAX
+    learner, the probe; the L2 optimizers copy them): ``eps`` and ``fused=True``. The fused
     kernel takes Adam's square root with the CPU's exactly rounded instruction. The default (loop) Adam calls
     MKL's vector math for it, whose portable branch (``MKL_CBWR=COMPATIBLE``) is not exactly rounded and gave
     different weights after the first update on an AMD EPYC and an Intel Xeon (README, "Determinism")."""

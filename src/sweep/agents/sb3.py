@@ -138,8 +138,15 @@ class SB3PPO(StepwiseLearning, PPO):
                 "rng": self.rng.bit_generator.state}
 
     def load_learner_state(self, state: dict[str, Any]) -> None:
+        """Parameters, Adam's moments and the remedy generator from ``state``. Adam's kernel stays the one this
+        code builds (``adam_kwargs``): torch would take a checkpoint's ``fused`` too, and one written before the
+        fused Adam would bring back MKL's square root for the rest of the run."""
+        optimizer = self.policy.optimizer
+        fused = [group.get("fused") for group in optimizer.param_groups]
         self.policy.load_state_dict(state["policy"])
-        self.policy.optimizer.load_state_dict(state["optimizer"])
+        optimizer.load_state_dict(state["optimizer"])
+        for group, kernel in zip(optimizer.param_groups, fused):
+            group["fused"] = kernel
         if "rng" in state:
             self.rng.bit_generator.state = state["rng"]
 

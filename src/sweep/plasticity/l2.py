@@ -52,7 +52,7 @@ class AnchoredAdam(torch.optim.Adam):
 def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled",
                  params: tuple[str, ...] = ("policy", "value"), biases: bool = True,
                  anchors: dict[str, torch.Tensor] | None = None) -> torch.optim.Optimizer:
-    """A copy of ``policy.optimizer`` (same lr, betas, eps) with weight decay on the chosen parameters, toward 0
+    """A copy of ``policy.optimizer`` (same lr, betas, eps, kernel) with weight decay on the chosen parameters, toward 0
     or, given ``anchors`` (name -> theta_0), toward them."""
     old = policy.optimizer.param_groups[0]
     decay, rest, names = [], [], []

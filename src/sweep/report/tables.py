@@ -392,8 +392,8 @@ def provenance(runs: pd.DataFrame) -> str:
         return ""
     parts = "; ".join(f"{n} on {cpu} ({mode})" for (cpu, mode), n in made.items())
     return (f"Note: these runs were made on {len(made)} CPU model / float mode combinations ({parts}). In native "
-            "mode a seed run on another CPU model can be another sample; in portable mode the JAX learner's runs "
-            "were bitwise equal on an AMD EPYC and an Intel Xeon, SB3's are yet to be shown (README, Determinism)."
+            "mode a seed run on another CPU model can be another sample; in portable mode the JAX learner's "
+            "reference runs were bitwise equal on an AMD EPYC and an Intel Xeon (README, Determinism)."
             "\n\n")
 
 
