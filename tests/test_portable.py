@@ -179,9 +179,9 @@ print(*out)
 
 def test_adam_steps_the_same_whatever_mkl_branch_computes_it():
     """The project's Adam (fused: the CPU's exactly rounded square root) does not go through MKL: its steps are
-    equal under MKL's portable branch and its AVX2, SSE4.2 and host (AUTO) ones. torch's default Adam takes the square root
-    from MKL's vector math, which moves with the branch (and, in the portable branch, parted an AMD EPYC and an
-    Intel Xeon after one update; README, Determinism), so the comparison can fail."""
+    equal under MKL's portable branch and its AVX2, SSE4.2 and host (AUTO) ones. torch's default Adam takes the
+    square root from MKL's vector math, which moves with the branch (and, in the portable branch, parted an AMD
+    EPYC and an Intel Xeon after one update; README, Determinism), so the comparison can fail."""
     def steps(branch: str) -> list[str]:
         proc = subprocess.run([sys.executable, "-c", ADAM_STEPS, branch], env=clean_env(), capture_output=True,
                               text=True, timeout=300, cwd=ROOT)
