@@ -38,6 +38,15 @@ def checkpoint_dir(tmp_path, monkeypatch) -> Path:
     return path
 
 
+@pytest.fixture(autouse=True)
+def sb3_logdir(tmp_path, monkeypatch) -> Path:
+    """SB3's own ``learn()`` (the reference in equivalence tests) makes a log folder even when it writes nothing:
+    ``$SB3_LOGDIR``, else a new ``/tmp/SB3-<time>`` per call. It goes to the test's temp dir."""
+    path = tmp_path / "sb3"
+    monkeypatch.setenv("SB3_LOGDIR", str(path))
+    return path
+
+
 @pytest.fixture
 def store(tmp_path, monkeypatch) -> str:
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
