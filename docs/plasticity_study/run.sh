@@ -6,8 +6,9 @@
 #   docs/plasticity_study/run.sh pilot-report    # the pilot's per-segment tables and curves -> docs/plasticity_study/pilot
 #   docs/plasticity_study/run.sh main-flip       # experiment=plasticity: 12 agents x seeds 0-7 x 18M (6 segments of 3M)
 #   docs/plasticity_study/run.sh main-payload    # the same under vehicle=payload (still air)
-#   AGENTS_EXTRA=ppo,reset_all,a,b,c docs/plasticity_study/run.sh extra-flip     # seeds 8-15 of PPO, reset_all
-#   AGENTS_EXTRA=ppo,reset_all,a,b,c docs/plasticity_study/run.sh extra-payload  #   and the pilot's top 3
+#   docs/plasticity_study/run.sh extra-flip      # seeds 8-15 of PPO, reset_all and the pilot's top 3 (AGENTS_EXTRA)
+#   docs/plasticity_study/run.sh extra-payload   # the same under vehicle=payload
+#   docs/plasticity_study/run.sh main            # the four phases above in order (what a session resumes)
 #   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
@@ -28,7 +29,8 @@ STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
 MAIN_COMMIT=01b8be3
 CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
-AGENTS_EXTRA=${AGENTS_EXTRA:-}   # seeds 8-15: PPO, reset_all and the pilot's top 3, e.g. ppo,reset_all,a,b,c
+# seeds 8-15: PPO, reset_all and the three agents the pilot ranked highest (docs/plasticity_study.md, The pilot)
+AGENTS_EXTRA=${AGENTS_EXTRA:-ppo,reset_all,layer_norm,l2_lr_decay_8m,l2_lr_decay}
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/plasticity_study/runs
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
@@ -47,11 +49,10 @@ case ${1:-} in
   pilot-payload) sweep $PILOT_COMMIT pilot-payload wind=none vehicle=payload "${PILOT[@]}" ;;
   main-flip)     sweep $MAIN_COMMIT main-flip wind=flip ${SEEDS:+"seed=$SEEDS"} ;;
   main-payload)  sweep $MAIN_COMMIT main-payload wind=none vehicle=payload ${SEEDS:+"seed=$SEEDS"} ;;
-  extra-flip)    [ -n "$AGENTS_EXTRA" ] || { echo "run.sh: set AGENTS_EXTRA (e.g. ppo,reset_all,a,b,c)" >&2; exit 2; }
-                 sweep $MAIN_COMMIT extra-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$AGENTS_EXTRA" ;;
-  extra-payload) [ -n "$AGENTS_EXTRA" ] || { echo "run.sh: set AGENTS_EXTRA (e.g. ppo,reset_all,a,b,c)" >&2; exit 2; }
-                 sweep $MAIN_COMMIT extra-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
+  extra-flip)    sweep $MAIN_COMMIT extra-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$AGENTS_EXTRA" ;;
+  extra-payload) sweep $MAIN_COMMIT extra-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
                    "agent=$AGENTS_EXTRA" ;;
+  main)          for phase in main-flip main-payload extra-flip extra-payload; do "$0" "$phase"; done ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
@@ -60,5 +61,5 @@ case ${1:-} in
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
   import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,13p "$0"; exit 2 ;;
+  *) sed -n 2,14p "$0"; exit 2 ;;
 esac
