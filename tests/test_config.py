@@ -24,7 +24,8 @@ REMEDIES = {"ppo": [], "reset_all": ["ResetAll"], "l2": ["L2Regularization"], "r
             "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
             "shrink_perturb": ["ShrinkPerturb"], "cbp_l2": ["L2Regularization", "ContinualBackprop"],
             "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"],
-            "l2_lr_decay_8m": ["L2Regularization"], "ppo_target_kl": []}
+            "l2_lr_decay_8m": ["L2Regularization"], "ppo_target_kl": [],
+            "layer_norm_l2_lr_decay_8m": ["L2Regularization"]}
 
 
 def test_groups_exist():

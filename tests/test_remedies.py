@@ -156,9 +156,12 @@ def test_one_update_with_each_remedy_agrees_between_sb3_and_jax(remedy):
 
 @pytest.mark.parametrize("overrides", [["agent=l2_init", "agent.l2_init.coef=1e-2"],
                                        ["agent=l2_init", "agent.l2_init.coef=1e-2", "agent.l2_init.mode=coupled"],
-                                       ["agent=layer_norm"], ["agent=ppo_target_kl", "agent.ppo.target_kl=0.002"]])
+                                       ["agent=layer_norm"], ["agent=ppo_target_kl", "agent.ppo.target_kl=0.002"],
+                                       ["agent=layer_norm_l2_lr_decay_8m", "agent.l2.coef=1e-2"]])
 def test_one_update_agrees_between_sb3_and_jax(overrides):
-    sb3, jx = pair(overrides)
+    """The agents without a remedy hook of their own, and the combination (its L2 decays the LayerNorm parameters
+    alike on both learners; the plasticity study's 18M run places its 8M decay)."""
+    sb3, jx = pair(overrides, total_timesteps=18_000_000)
     sb3_rollout_into_both(sb3, jx)
     states = []
     for model in (sb3, jx):

@@ -2,11 +2,11 @@
 column-width fonts.
 
 Colours. Every agent of conf/agent/ (and ``reset_all``) has its own colour, fixed by name (AGENT_COLOURS), so an
-agent looks the same in every panel, figure and report. The thirteen colours are Okabe-Ito's and Paul Tol's
-colour-blind-safe sets, chosen so that any two differ by at least MIN_DELTA_E (CIE76 ΔE in CIELAB) for normal vision
-and as simulated for deuteranopia and protanopia (Machado et al. 2009; tests/test_report.py measures it). An agent
-not named here takes the first colour that no agent of the report has; once those run out, colours repeat with
-ROUND_DASHES. Agents a figure does not highlight are drawn thin in GREY (``figures``).
+agent looks the same in every panel, figure and report. Thirteen colours are Okabe-Ito's and Paul Tol's
+colour-blind-safe sets; the fourteenth was searched for on an sRGB grid, at mid lightness, as far as possible from
+them and from GREY. Any two differ by at least MIN_DELTA_E (CIE76 ΔE in CIELAB) for normal vision and as simulated
+for deuteranopia and protanopia (Machado et al. 2009; tests/test_report.py measures it). An agent not named here
+takes the first colour that no agent of the report has; once those run out, colours repeat with ROUND_DASHES. Agents a figure does not highlight are drawn thin in GREY (``figures``).
 """
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ AGENT_COLOURS = {
     "recom_l2_relative": "#882255", "l2_lr_decay": "#E69F00", "l2_lr_decay_8m": "#33BBEE",
     "ppo_target_kl": "#332288", "layer_norm": "#CC79A7", "cbp_l2": "#117733", "redo": "#EE6677",
     "shrink_perturb": "#006CD1", "l2_init": "#EE99AA",
+    "layer_norm_l2_lr_decay_8m": "#5A2DFF",   # the 14th: ΔE >= 36 from the 13 and GREY in all three visions
 }
 PALETTE = list(AGENT_COLOURS.values())
 MIN_DELTA_E = 14.0  # the palette's smallest pairwise ΔE over normal vision, deuteranopia and protanopia
@@ -71,7 +72,7 @@ def looks(agent_of: dict[str, str]) -> dict[str, tuple]:
     An agent's first series takes the agent's own look (AGENT_COLOURS and its dash; an agent not named there the
     first colour that no agent of the report has). Each further series of the same agent takes the first look no
     series has yet: a free colour with the agent's dash, then each colour with each of ROUND_DASHES. No two series
-    look alike (up to 9 x 13 of them).
+    look alike (up to 9 x 14 of them).
     """
     present = set(agent_of.values())
     free = [c for c in PALETTE if c not in {AGENT_COLOURS[a] for a in present if a in AGENT_COLOURS}]
