@@ -8,7 +8,9 @@
 #   docs/plasticity_study/run.sh main-payload    # the same under vehicle=payload (still air)
 #   docs/plasticity_study/run.sh extra-flip      # seeds 8-15 of PPO, reset_all and the pilot's top 3 (AGENTS_EXTRA)
 #   docs/plasticity_study/run.sh extra-payload   # the same under vehicle=payload
-#   docs/plasticity_study/run.sh main            # the four phases above in order (what a session resumes)
+#   docs/plasticity_study/run.sh combo-flip      # seeds 0-7 of the combination added after the pilot (COMBO)
+#   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
+#   docs/plasticity_study/run.sh main            # main-flip ... combo-payload, in order (what a session resumes)
 #   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
@@ -29,6 +31,10 @@ STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
 MAIN_COMMIT=01b8be3
 CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
+# COMBO_COMMIT: MAIN_COMMIT's training code plus conf/agent/layer_norm_l2_lr_decay_8m.yaml, the combination of the
+# pilot's top two (LayerNorm, L2 + LR decay by 8M), added after the pilot and run after the other phases
+COMBO_COMMIT=be84f2b
+COMBO=layer_norm_l2_lr_decay_8m
 # seeds 8-15: PPO, reset_all and the three agents the pilot ranked highest (docs/plasticity_study.md, The pilot)
 AGENTS_EXTRA=${AGENTS_EXTRA:-ppo,reset_all,layer_norm,l2_lr_decay_8m,l2_lr_decay}
 PY=${PYTHON:-$ROOT/.venv/bin/python}
@@ -52,7 +58,12 @@ case ${1:-} in
   extra-flip)    sweep $MAIN_COMMIT extra-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$AGENTS_EXTRA" ;;
   extra-payload) sweep $MAIN_COMMIT extra-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
                    "agent=$AGENTS_EXTRA" ;;
-  main)          for phase in main-flip main-payload extra-flip extra-payload; do "$0" "$phase"; done ;;
+  combo-flip)    sweep $COMBO_COMMIT combo-flip wind=flip "seed=${SEEDS:-0,1,2,3,4,5,6,7}" "agent=$COMBO" ;;
+  combo-payload) sweep $COMBO_COMMIT combo-payload wind=none vehicle=payload "seed=${SEEDS:-0,1,2,3,4,5,6,7}" \
+                   "agent=$COMBO" ;;
+  main)          for phase in main-flip main-payload extra-flip extra-payload combo-flip combo-payload; do
+                   "$0" "$phase"
+                 done ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
@@ -61,5 +72,5 @@ case ${1:-} in
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
   import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,14p "$0"; exit 2 ;;
+  *) sed -n 2,16p "$0"; exit 2 ;;
 esac
