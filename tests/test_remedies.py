@@ -162,6 +162,10 @@ def test_one_update_agrees_between_sb3_and_jax(overrides):
     """The agents without a remedy hook of their own, and the combination (its L2 decays the LayerNorm parameters
     alike on both learners; the plasticity study's 18M run places its 8M decay)."""
     sb3, jx = pair(overrides, total_timesteps=18_000_000)
+    if "agent=layer_norm_l2_lr_decay_8m" in overrides:   # both learners put the LayerNorm scales in the L2
+        scale = "mlp_extractor.policy_net.1.weight"
+        decayed = {id(p) for g in sb3.policy.optimizer.param_groups if g["weight_decay"] for p in g["params"]}
+        assert id(dict(sb3.policy.named_parameters())[scale]) in decayed and scale in jx.l2_decayed
     sb3_rollout_into_both(sb3, jx)
     states = []
     for model in (sb3, jx):

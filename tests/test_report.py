@@ -869,7 +869,7 @@ def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, mo
         assert not drawn[f"{stem}:grey"] and "Grey" not in drawn[f"{stem}:note"]
         for text, colour, dash in drawn[stem]:
             assert look.setdefault(text, (colour, dash)) == (colour, dash), (stem, text)  # the same look as before
-    # no agent of a fixed colour here: twelve of the palette's thirteen colours, one each
+    # no agent of a fixed colour here: twelve of the palette's fourteen colours, one each
     assert len({colour for colour, _ in look.values()}) == len(look) == 12, look
 
 

@@ -31,7 +31,7 @@ STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
 MAIN_COMMIT=01b8be3
 CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
-# COMBO_COMMIT: MAIN_COMMIT's training code plus conf/agent/layer_norm_l2_lr_decay_8m.yaml, the combination of the
+# COMBO_COMMIT: MAIN_COMMIT's JAX training code plus conf/agent/layer_norm_l2_lr_decay_8m.yaml, the combination of the
 # pilot's top two (LayerNorm, L2 + LR decay by 8M), added after the pilot and run after the other phases
 COMBO_COMMIT=be84f2b
 COMBO=layer_norm_l2_lr_decay_8m
@@ -62,7 +62,7 @@ case ${1:-} in
   combo-payload) sweep $COMBO_COMMIT combo-payload wind=none vehicle=payload "seed=${SEEDS:-0,1,2,3,4,5,6,7}" \
                    "agent=$COMBO" ;;
   main)          for phase in main-flip main-payload extra-flip extra-payload combo-flip combo-payload; do
-                   "$0" "$phase"
+                   SEEDS= "$0" "$phase"   # each phase its own seeds (SEEDS=... is for one phase)
                  done ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
