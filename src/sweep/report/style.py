@@ -6,7 +6,8 @@ agent looks the same in every panel, figure and report. Thirteen colours are Oka
 colour-blind-safe sets; the fourteenth was searched for on an sRGB grid, at mid lightness, as far as possible from
 them and from GREY. Any two differ by at least MIN_DELTA_E (CIE76 ΔE in CIELAB) for normal vision and as simulated
 for deuteranopia and protanopia (Machado et al. 2009; tests/test_report.py measures it). An agent not named here
-takes the first colour that no agent of the report has; once those run out, colours repeat with ROUND_DASHES. Agents a figure does not highlight are drawn thin in GREY (``figures``).
+takes the first colour that no agent of the report has; once those run out, colours repeat with ROUND_DASHES.
+Agents a figure does not highlight are drawn thin in GREY (``figures``).
 """
 from __future__ import annotations
 
