@@ -37,7 +37,10 @@ One table, all rows measured in this run:
 * the training loop's cost (``python benchmarks/bench.py loop [BASE [REPEATS [NEW]]]``, not part of ``make bench``:
   it needs the git history): the steady end-to-end rate (``experiment=paper``) of each learner with the code of
   commit BASE (default ``LOOP_BASE``, the last commit with SB3's ``learn()`` and callbacks) against NEW (default
-  this tree), fresh processes, alternated; the median per-pass ratio per CPU second and per wall second.
+  this tree), fresh processes, alternated; the median per-pass ratio per CPU second and per wall second;
+* the report's bootstrap CIs (``python benchmarks/bench.py report``, also part of ``make bench``): P(X > Y) and the
+  IQM of 16 seeds against 16 (``sweep.report.stats``, ``RESAMPLES`` resamples), the statistic computed for all
+  resamples at once against rliable's own function called once per resample (the reference), best of ``REPEATS``.
 """
 from __future__ import annotations
 
@@ -463,6 +466,47 @@ def loop_rows(base: str = LOOP_BASE, repeats: int = REPEATS, new: str | None = N
     return rows
 
 
+def report_rows(repeats: int = REPEATS) -> list[tuple[str, str, str, str, str]]:
+    """The report's bootstrap CIs (sweep.report.stats) vs rliable's metric called once per resample."""
+    from rliable import metrics
+    from scipy import stats as scipy_stats
+
+    from sweep.report import stats
+
+    rng = np.random.default_rng(0)
+    x, y = rng.integers(0, 9, 16) / 8, rng.integers(0, 9, 16) / 8  # keeps-hovering shares of 16 seeds each
+
+    def per_resample(func):
+        def statistic(*samples, axis=-1):
+            rows = zip(*(np.moveaxis(s, axis, -1).reshape(-1, s.shape[axis]) for s in samples))
+            return np.array([func(*(r[:, None] for r in row)) for row in rows])
+        return statistic
+
+    def reference(func, data, **kw):
+        return scipy_stats.bootstrap(data, per_resample(func), n_resamples=stats.RESAMPLES, method="percentile",
+                                     vectorized=True, rng=np.random.default_rng(stats.RNG_SEED), **kw)
+
+    def best(fn) -> float:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    cases = [("P(X > Y) and its CI, 16 vs 16 seeds", lambda: reference(metrics.probability_of_improvement, (x, y),
+                                                                         paired=False), lambda: stats.poi_ci(x, y)),
+             ("IQM and its CI, 16 seeds", lambda: reference(metrics.aggregate_iqm, (x,)), lambda: stats.iqm_ci(x))]
+    rows = []
+    for what, ref_fn, ours_fn in cases:
+        ci = ref_fn().confidence_interval
+        assert (ci.low, ci.high) == ours_fn()[1:], f"{what}: the two bootstraps disagree"
+        ref, ours = best(ref_fn), best(ours_fn)
+        rows.append((f"report bootstrap: {what}, ms (rliable per resample vs ours)", f"{ref * 1e3:,.0f}",
+                     f"{ours * 1e3:,.1f}", f"{ref / ours:.0f}x", ""))
+    return rows
+
+
 def _fresh_pool_map(fn, argss):
     """Run fn(*args) for each args in fresh loky workers, all concurrently; return results in order."""
     from joblib import Parallel, delayed
@@ -494,6 +538,9 @@ def main() -> int:
         return _print_table(rows, t_start, load0)
     if sys.argv[1:] == ["portable"]:
         rows += portable_rows()
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:] == ["report"]:
+        rows += report_rows()
         return _print_table(rows, t_start, load0)
     if sys.argv[1:2] == ["loop"]:
         rows += loop_rows(*sys.argv[2:5])
@@ -609,6 +656,7 @@ def main() -> int:
     rows += remedy_rows()
     rows += study_rows()
     rows += portable_rows()
+    rows += report_rows()
     return _print_table(rows, t_start, load0)
 
 

@@ -556,6 +556,22 @@ def test_probability_of_improvement_on_hand_built_scores():
     assert point == 1.0 and np.isnan(low) and np.isnan(high)
 
 
+def test_bootstrap_statistics_equal_rliable_on_every_resample():
+    """The IQM and P(X > Y) of a batch of resamples at once (what the bootstrap evaluates, 2,000 at a time)
+    equal rliable's own functions on each resample, bit for bit: scores with many ties (success shares),
+    continuous ones, identical sides (rliable's 0.5 case) and unequal sizes."""
+    from rliable import metrics
+    rng = np.random.default_rng(7)
+    cases = [(rng.integers(0, 5, (300, 8)) / 4, rng.integers(0, 5, (300, 16)) / 4),
+             (rng.normal(size=(300, 9)), rng.normal(0.3, 1.0, (300, 3)))]
+    same = rng.integers(0, 3, (50, 6)) / 2.0
+    cases.append((same, same.copy()))
+    for x, y in cases:
+        want = [metrics.probability_of_improvement(a[:, None], b[:, None]) for a, b in zip(x, y)]
+        assert stats._p_improve(x, y).tolist() == want
+        assert stats._p_improve(x.T, y.T, axis=0).tolist() == want
+        assert stats._iqm(x).tolist() == [metrics.aggregate_iqm(a[:, None]) for a in x]
+
 def test_iqm_and_its_interval_on_hand_built_scores():
     """IQM of 12 scores = mean of the middle six, whatever the two outliers. The CI against an independent
     percentile bootstrap written here in NumPy (its own generator, 20,000 resamples, IQM by sorting): the two

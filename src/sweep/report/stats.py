@@ -39,14 +39,18 @@ def _bootstrap(data: tuple, statistic, **kwargs):
                                confidence_level=0.95, rng=np.random.default_rng(RNG_SEED), **kwargs)
 
 
-def _rowwise(func):
-    """Vectorized form of an rliable metric for scipy.stats.bootstrap: ``func`` applied to each resample."""
-    def statistic(*samples, axis=-1):
-        flat = [np.moveaxis(x, axis, -1) for x in samples]
-        batch = flat[0].shape[:-1]
-        rows = zip(*(x.reshape(-1, x.shape[-1]) for x in flat))
-        return np.array([func(*(r[:, None] for r in row)) for row in rows]).reshape(batch)
-    return statistic
+def _iqm(x, axis=-1):
+    """rliable's ``aggregate_iqm`` (a 25% trimmed mean) of each resample along ``axis``."""
+    return stats.trim_mean(x, 0.25, axis=axis)
+
+
+def _p_improve(x, y, axis=-1):
+    """rliable's ``probability_of_improvement`` of each pair of resamples along ``axis``: the Mann-Whitney U of X
+    over Y divided by n_x n_y, i.e. the share of pairs (x_i, y_j) with x_i > y_j, ties counted half (0.5 when
+    X equals Y, as rliable sets it). Exact: the counts are sums of halves."""
+    x, y = np.moveaxis(x, axis, -1), np.moveaxis(y, axis, -1)
+    a, b = x[..., :, None], y[..., None, :]
+    return ((a > b) + 0.5 * (a == b)).mean(axis=(-2, -1))
 
 
 def common_grid(histories: pd.DataFrame, points: int = 200) -> np.ndarray:
@@ -191,7 +195,7 @@ def iqm_ci(scores) -> tuple[float, float, float]:
     point = float(metrics.aggregate_iqm(x[:, None]))
     if len(x) < 2:
         return point, np.nan, np.nan
-    ci = _bootstrap((x,), _rowwise(metrics.aggregate_iqm), vectorized=True).confidence_interval
+    ci = _bootstrap((x,), _iqm, vectorized=True).confidence_interval
     return point, float(ci.low), float(ci.high)
 
 
@@ -206,8 +210,8 @@ def iqm_diff_ci(scores_x, scores_y) -> tuple[float, float, float]:
     if len(x) < 2 or len(y) < 2:
         return point, np.nan, np.nan
 
-    def diff(a, b, axis=-1):  # aggregate_iqm (a 25% trimmed mean) of each resample, vectorized
-        return stats.trim_mean(a, 0.25, axis=axis) - stats.trim_mean(b, 0.25, axis=axis)
+    def diff(a, b, axis=-1):
+        return _iqm(a, axis) - _iqm(b, axis)
 
     ci = _bootstrap((x, y), diff, vectorized=True, paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)
@@ -240,8 +244,7 @@ def poi_ci(scores_x, scores_y) -> tuple[float, float, float]:
     point = float(metrics.probability_of_improvement(x[:, None], y[:, None]))
     if len(x) < 2 or len(y) < 2:
         return point, np.nan, np.nan
-    ci = _bootstrap((x, y), _rowwise(metrics.probability_of_improvement), vectorized=True,
-                    paired=False).confidence_interval
+    ci = _bootstrap((x, y), _p_improve, vectorized=True, paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)
 
 
