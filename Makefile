@@ -25,11 +25,15 @@ run: $(STAMP)  ## the main job: a few-minute demo (a drone learning to hover) of
 
 demo: run
 
+# Tests on every core (pytest-xdist), a test module per worker (--dist loadscope: its module fixtures, such as
+# test_report's trained store, are built once). `pytest tests/test_x.py` alone runs in one process.
+TEST_WORKERS ?= auto
+
 test: $(STAMP)
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -m slow
+	$(PY) -m pytest -m slow -n $(TEST_WORKERS) --dist loadscope
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py

@@ -9,7 +9,10 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from hydra import compose, initialize_config_dir
+
+torch.set_num_threads(1)  # one thread per process, as every run (`make test` runs a test process per core)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

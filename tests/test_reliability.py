@@ -32,7 +32,7 @@ RECOM_RUN = ["agent=recom_l2", "seed=4", "agent.ppo.n_steps=512", "agent.ppo.n_e
              "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
 
 
-@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 61440)])  # jax: ~20x faster, longer run
+@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 20480)])  # jax: faster, longer run
 def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, learner, total):
     uri = f"sqlite:///{tmp_path / 'killed.db'}"
     config = [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"]
