@@ -38,8 +38,19 @@ def test_groups_exist():
         assert cfg.agent.name == agent and cfg.agent.label.strip() and remedy_blocks <= set(cfg.agent)
 
 
-# every agent x the paper's two winds x every experiment; the other winds with every agent and vehicle below
-@pytest.mark.parametrize("agent,wind,experiment", list(itertools.product(AGENTS, ["none", "paper"], [None, *EXPERIMENTS])))
+def all_pairs(agents: list, others: list, third: list) -> list[tuple]:
+    """(agent, other, third) covering every pair of values of any two of the three factors, in len(agents) x
+    len(others) combinations instead of the full product: the third value cycles with the indices, so each agent
+    and each other value meets every third value (both lists at least as long as ``third``)."""
+    assert len(agents) >= len(third) and len(others) >= len(third)
+    return [(a, o, third[(i + j) % len(third)]) for (i, a), (j, o) in itertools.product(enumerate(agents),
+                                                                                         enumerate(others))]
+
+
+# Composition is tested on every pair of values of any two groups (all pairs; the full product of the groups took
+# minutes for what a pair can break): every agent x every experiment, each with one of the paper's two winds;
+# the other winds, the vehicles and the learners below.
+@pytest.mark.parametrize("agent,experiment,wind", all_pairs(AGENTS, [None, *EXPERIMENTS], ["none", "paper"]))
 def test_every_config_composes_and_validates(agent, wind, experiment):
     overrides = [f"agent={agent}", f"wind={wind}"] + ([f"experiment={experiment}"] if experiment else [])
     cfg = compose_cfg(overrides)
@@ -51,13 +62,30 @@ def test_every_config_composes_and_validates(agent, wind, experiment):
 VEHICLES = sorted(p.stem for p in (CONF / "vehicle").glob("*.yaml"))
 
 
-@pytest.mark.parametrize("vehicle,learner", list(itertools.product(VEHICLES, ["sb3", "jax"])))
+VEHICLE_LEARNERS = list(itertools.product(VEHICLES, ["sb3", "jax"]))
+OTHER_WINDS = [w for w in WINDS if w not in ("none", "paper")]
+
+
+@pytest.mark.parametrize("vehicle,learner", VEHICLE_LEARNERS)
 def test_every_vehicle_composes_with_every_agent_and_learner(vehicle, learner):
+    """Every agent with this vehicle and learner, and one of the other winds (all pairs of agent, vehicle,
+    learner and wind over the six tests)."""
     assert {"nominal", "payload", "motor"} <= set(VEHICLES)
-    for agent, wind in itertools.product(AGENTS, [w for w in WINDS if w not in ("none", "paper")]):
+    for agent, pair, wind in all_pairs(AGENTS, VEHICLE_LEARNERS, OTHER_WINDS):
+        if pair != (vehicle, learner):
+            continue
         cfg = compose_cfg([f"agent={agent}", f"vehicle={vehicle}", f"agent.learner={learner}", f"wind={wind}"])
         validate(cfg)
         assert cfg.vehicle.name == vehicle and cfg.wind.name == wind
+
+
+def test_the_composition_tests_meet_every_pair_of_values():
+    for combos in (all_pairs(AGENTS, [None, *EXPERIMENTS], ["none", "paper"]),
+                   [(a, v, l, w) for a, (v, l), w in all_pairs(AGENTS, VEHICLE_LEARNERS, OTHER_WINDS)]):
+        values = [{c[k] for c in combos} for k in range(len(combos[0]))]
+        for a, b in itertools.combinations(range(len(values)), 2):
+            assert {(c[a], c[b]) for c in combos} == set(itertools.product(values[a], values[b])), (a, b)
+    assert {c[0] for c in combos} == set(AGENTS) and {c[3] for c in combos} == set(OTHER_WINDS)
 
 
 def test_paper_wind_and_experiment():
