@@ -42,6 +42,14 @@ def checkpoint_dir(tmp_path, monkeypatch) -> Path:
 
 
 @pytest.fixture(autouse=True)
+def in_tmp_dir(tmp_path, monkeypatch) -> Path:
+    """Each test runs in its temp dir: what a run writes relative to the working directory (MLflow's ./mlruns
+    artifacts of a SQLite store, Hydra's outputs/) stays there, never in the project root."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.fixture(autouse=True)
 def sb3_logdir(tmp_path, monkeypatch) -> Path:
     """SB3's own ``learn()`` (the reference in equivalence tests) makes a log folder even when it writes nothing:
     ``$SB3_LOGDIR``, else a new ``/tmp/SB3-<time>`` per call. It goes to the test's temp dir."""

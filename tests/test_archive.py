@@ -24,7 +24,6 @@ def test_thin_keeps_first_last_and_at_most_max_points():
 
 
 def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)  # MLflow puts a SQLite store's artifacts under ./mlruns
     source, target = f"sqlite:///{tmp_path / 'a.db'}", f"sqlite:///{tmp_path / 'b.db'}"
     overrides = ["agent=recom_l2", "seed=4", "wind=paper", *TINY]
     monkeypatch.setenv("MLFLOW_TRACKING_URI", source)

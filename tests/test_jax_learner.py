@@ -310,18 +310,19 @@ def test_a_jax_run_is_tracked_like_an_sb3_run(store, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(3600)
 def test_learning_curves_are_equivalent(tmp_path):
     """5 seeds x 1M timesteps per learner on the hover task (experiment=equivalence, shortened): the 95% bootstrap
     CI of the IQM difference of the final reward (jax - sb3), from the project's report, contains 0.
     ~25 min on 2 cores. The documented study (1.5M timesteps): docs/jax_learner.md."""
     import pandas as pd
 
-    from conftest import ROOT, run_cli
+    from conftest import run_cli
     from sweep.report.__main__ import main as report
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     proc = run_cli(["-m", "experiment=equivalence", "train.total_timesteps=1000000", "tracking.experiment=equiv",
-                    f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, ROOT, timeout=3 * 3600)
+                    f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path, timeout=3 * 3600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     import os
     os.environ["MLFLOW_TRACKING_URI"] = uri

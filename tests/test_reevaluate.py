@@ -30,8 +30,8 @@ def logged(uri: str, run_id: str, prefix: str = "") -> dict[str, dict[str, float
 
 
 @pytest.fixture
-def in_tmp(tmp_path, monkeypatch, store):
-    monkeypatch.chdir(tmp_path)  # MLflow puts a SQLite store's artifacts under ./mlruns
+def in_tmp(store):
+    """The test's store; the test runs in its temp dir (conftest), where MLflow puts the store's ./mlruns."""
     return store
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from conftest import ROOT, TINY, compose_cfg, run_cli
+from conftest import TINY, compose_cfg, run_cli
 from sweep.checkpoint import load_checkpoint
 from sweep.run import run
 
@@ -38,7 +38,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     config = [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"]
     args = [*config, f"hydra.run.dir={tmp_path / 'out'}"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=ROOT, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=tmp_path, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
     checkpoint = None
@@ -51,11 +51,11 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     assert checkpoint is not None and proc.poll() is None, "run ended before it could be killed mid-way"
     time.sleep(0.5)
     proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    assert proc.wait() == -signal.SIGKILL, "run ended before it could be killed mid-way"
     killed_at = load_checkpoint(checkpoint)["num_timesteps"]
     assert killed_at < total
 
-    again = run_cli(args, uri, ROOT)
+    again = run_cli(args, uri, tmp_path)
     assert again.returncode == 0, again.stderr[-2000:]
     client, runs = runs_of(uri)
     assert len(runs) == 1 and runs[0].info.status == "FINISHED"
@@ -65,7 +65,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
 
     # The resumed run is the run that would have happened: same histories as an uninterrupted one.
     ref_uri = f"sqlite:///{tmp_path / 'reference.db'}"
-    ref = run_cli([*config, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, ROOT)
+    ref = run_cli([*config, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, tmp_path)
     assert ref.returncode == 0, ref.stderr[-2000:]
     ref_client, (ref_run,) = runs_of(ref_uri)
     for key in ("train/learning_rate", "rollout/ep_rew_mean", "train/loss", "recom/cost"):
@@ -73,7 +73,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     assert len({v for _, v in history(client, run_id, "train/learning_rate")}) > 1
 
     # A completed run is not retrained.
-    third = run_cli(args, uri, ROOT)
+    third = run_cli(args, uri, tmp_path)
     assert third.returncode == 0 and len(runs_of(uri)[1]) == 1
     assert len(history(client, run_id, "time/total_timesteps")) == len(steps)
 
@@ -100,7 +100,7 @@ def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
         proc = run_cli(["-m", "seed=0,1", *TINY, "train.total_timesteps=1536", "train.checkpoint_every=512",
                         "+agent.fault._target_=faults.Fault", "+agent.fault.seed=1", "+agent.fault.at_step=1024",
                         f"+agent.fault.kind={kind}", f"hydra.sweep.dir={tmp_path / 'sweep'}",
-                        "hydra.launcher.n_jobs=2"], uri, ROOT)
+                        "hydra.launcher.n_jobs=2"], uri, tmp_path)
     finally:
         os.environ["PYTHONPATH"] = env_path
     assert proc.returncode == 1
@@ -118,7 +118,7 @@ def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
 def test_four_concurrent_jobs_on_a_fresh_store(tmp_path):
     uri = f"sqlite:///{tmp_path / 'fresh.db'}"
     proc = run_cli(["-m", "agent=ppo,l2", "seed=0,1", *TINY, "eval.episodes=1", "env.episode_seconds=1.0",
-                    f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=4"], uri, ROOT)
+                    f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=4"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     client, runs = runs_of(uri)
     assert len(runs) == 4 and all(r.info.status == "FINISHED" for r in runs)
@@ -130,7 +130,7 @@ def test_four_concurrent_jobs_on_a_fresh_store(tmp_path):
 def test_submitit_local_launcher(tmp_path):
     uri = f"sqlite:///{tmp_path / 'x.db'}"
     proc = run_cli(["-m", "hydra/launcher=submitit_local", "hydra.launcher.cpus_per_task=1", "seed=0,1", *TINY,
-                    "train.total_timesteps=512", "eval.episodes=1", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, ROOT)
+                    "train.total_timesteps=512", "eval.episodes=1", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     _, runs = runs_of(uri)
     assert sorted(r.data.tags["seed"] for r in runs) == ["0", "1"] and all(r.info.status == "FINISHED" for r in runs)

@@ -62,8 +62,10 @@ def run_report(store: str, out: Path, *args: str) -> tuple[int, str, str]:
 def store(tmp_path_factory) -> str:
     tmp = tmp_path_factory.mktemp("store")
     uri = f"sqlite:///{tmp / 'mlflow.db'}"
-    proc = subprocess.run([sys.executable, "-m", "sweep", *SWEEP, f"hydra.sweep.dir={tmp / 'sweep'}"], cwd=ROOT,
-                          env=env_with(uri), capture_output=True, text=True, timeout=600)
+    # module-scoped: built before the autouse fixtures that keep a test's checkpoints and files in its temp dir
+    env = {**env_with(uri), "SWEEP_CHECKPOINT_DIR": str(tmp / "checkpoints")}
+    proc = subprocess.run([sys.executable, "-m", "sweep", *SWEEP, f"hydra.sweep.dir={tmp / 'sweep'}"], cwd=tmp,
+                          env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     log_hand_runs(MlflowClient(uri))
     return uri
@@ -566,11 +568,25 @@ def test_bootstrap_statistics_equal_rliable_on_every_resample():
              (rng.normal(size=(300, 9)), rng.normal(0.3, 1.0, (300, 3)))]
     same = rng.integers(0, 3, (50, 6)) / 2.0
     cases.append((same, same.copy()))
+    cases.append((rng.normal(size=(100, 40)), rng.integers(0, 9, (100, 33)) / 8))  # NumPy sums >= 8 values pairwise
     for x, y in cases:
         want = [metrics.probability_of_improvement(a[:, None], b[:, None]) for a, b in zip(x, y)]
         assert stats._p_improve(x, y).tolist() == want
         assert stats._p_improve(x.T, y.T, axis=0).tolist() == want
         assert stats._iqm(x).tolist() == [metrics.aggregate_iqm(a[:, None]) for a in x]
+    # and the intervals: scipy's bootstrap calling rliable once per resample (the report's method before) gives the
+    # same CI, bit for bit
+    from scipy.stats import bootstrap
+    x, y = rng.integers(0, 9, 12) / 8, rng.normal(0.5, 0.3, 9)
+
+    def per_resample(func):
+        return lambda *samples, axis=-1: np.array([func(*(r[:, None] for r in row)) for row in zip(*samples)])
+
+    for func, data, ours in ((metrics.probability_of_improvement, (x, y), stats.poi_ci(x, y)),
+                             (metrics.aggregate_iqm, (x,), stats.iqm_ci(x))):
+        ci = bootstrap(data, per_resample(func), n_resamples=stats.RESAMPLES, method="percentile", vectorized=True,
+                       paired=False, rng=np.random.default_rng(stats.RNG_SEED)).confidence_interval
+        assert (ci.low, ci.high) == ours[1:] and ours[1] < ours[2]
 
 def test_iqm_and_its_interval_on_hand_built_scores():
     """IQM of 12 scores = mean of the middle six, whatever the two outliers. The CI against an independent

@@ -66,6 +66,7 @@ def reference(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("MLFLOW_TRACKING_URI", uri)
         mp.setenv("SWEEP_CHECKPOINT_DIR", str(tmp / "checkpoints"))
+        mp.chdir(tmp)  # module-scoped: before the autouse fixture that runs each test in its temp dir
         run_id = run(compose_cfg(RUN), tmp / "job")
     ref = histories(uri, run_id)
     assert [s for s, _ in ref["time/total_timesteps"]] == [512, 1024, 1536, 2048]

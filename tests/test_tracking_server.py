@@ -21,8 +21,6 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT
-
 pytestmark = pytest.mark.slow
 VENV_BIN = Path(sys.executable).parent
 
@@ -114,7 +112,7 @@ def test_multirun_against_postgres_backed_mlflow_server_survives_a_sigkill(mlflo
 
     env = {**os.environ, "MLFLOW_TRACKING_URI": mlflow_server, "HYDRA_FULL_ERROR": "0"}
     args = [sys.executable, "-m", "sweep", *SWEEP, f"hydra.sweep.dir={tmp_path / 'sweep'}"]
-    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(args, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     killed = None
     deadline = time.time() + 300
     while killed is None and time.time() < deadline and proc.poll() is None:
@@ -131,7 +129,7 @@ def test_multirun_against_postgres_backed_mlflow_server_survives_a_sigkill(mlflo
     client = MlflowClient(mlflow_server)
     assert client.get_run(killed).info.status == "RUNNING"   # left unfinished by the kill
 
-    again = subprocess.run(args, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    again = subprocess.run(args, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, (first, again.stderr[-3000:])
     exp = client.get_experiment_by_name("server-test")
     runs = client.search_runs([exp.experiment_id])
@@ -152,7 +150,7 @@ def test_multirun_against_postgres_backed_mlflow_server_survives_a_sigkill(mlflo
     assert "server-test" in Path(local).read_text()
 
     report = subprocess.run([sys.executable, "-m", "sweep.report", "--experiment", "server-test", "--out",
-                             str(tmp_path / "report")], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+                             str(tmp_path / "report")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert report.returncode == 0, report.stderr[-2000:]
     assert "4 finished runs from http://127.0.0.1" in report.stdout
     assert (tmp_path / "report" / "reward_paper.png").stat().st_size > 10_000
@@ -229,7 +227,7 @@ def test_printed_link_opens_the_runs_table_in_a_real_browser(tmp_path):
     browser = chromium()
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     sweep = run_cli(["-m", "agent=ppo,l2", "seed=0,1", *TINY, "train.total_timesteps=512", "eval.episodes=1",
-                     "tracking.experiment=ui-test", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, ROOT)
+                     "tracking.experiment=ui-test", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
     assert sweep.returncode == 0, sweep.stderr[-2000:]
     (link,) = [line.split(": ", 2)[2] for line in sweep.stdout.splitlines() if line.startswith("sweep: then the runs table")]
     assert link.startswith("http://127.0.0.1:5000/#/experiments/") and link.endswith("?workflowType=machine_learning")

@@ -47,7 +47,8 @@ def _iqm(x, axis=-1):
 def _p_improve(x, y, axis=-1):
     """rliable's ``probability_of_improvement`` of each pair of resamples along ``axis``: the Mann-Whitney U of X
     over Y divided by n_x n_y, i.e. the share of pairs (x_i, y_j) with x_i > y_j, ties counted half (0.5 when
-    X equals Y, as rliable sets it). Exact: the counts are sums of halves."""
+    X equals Y, as rliable sets it). Exact: the counts are sums of halves. Finite scores only (poi_ci drops the
+    others; rliable would give NaN); memory grows as resamples x n_x x n_y (4 MB at 16 vs 16 seeds)."""
     x, y = np.moveaxis(x, axis, -1), np.moveaxis(y, axis, -1)
     a, b = x[..., :, None], y[..., None, :]
     return ((a > b) + 0.5 * (a == b)).mean(axis=(-2, -1))
