@@ -11,6 +11,7 @@
 #   docs/plasticity_study/run.sh combo-flip      # seeds 0-7 of the combination added after the pilot (COMBO)
 #   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
 #   docs/plasticity_study/run.sh main            # main-flip ... combo-payload, in order (what a session resumes)
+#   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
 #   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
@@ -64,6 +65,14 @@ case ${1:-} in
   main)          for phase in main-flip main-payload extra-flip extra-payload combo-flip combo-payload; do
                    SEEDS= "$0" "$phase"   # each phase its own seeds (SEEDS=... is for one phase)
                  done ;;
+  stop)          drivers=$(pgrep -f "plasticity_study/run.sh (main|pilot-|extra-|combo-)" || true)
+                 sweeps=$(pgrep -f "sweep -m experiment=plasticity" || true)
+                 workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)   # the jobs: joblib's worker processes
+                 [ -n "$drivers$sweeps" ] || { echo "no phase is running"; exit 0; }
+                 kill $drivers 2>/dev/null || true; sleep 1   # first the driver, so that no next phase starts
+                 kill $sweeps 2>/dev/null || true; sleep 2
+                 kill $workers 2>/dev/null || true
+                 echo "stopped: driver $drivers, sweeps $sweeps, jobs $workers" ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
