@@ -72,7 +72,7 @@ case ${1:-} in
                  kill $drivers 2>/dev/null || true; sleep 1   # first the driver, so that no next phase starts
                  kill $sweeps 2>/dev/null || true; sleep 2
                  kill $workers 2>/dev/null || true
-                 echo "stopped: driver $drivers, sweeps $sweeps, jobs $workers" ;;
+                 echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
                     --out "$ROOT/docs/plasticity_study/main") ;;
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
