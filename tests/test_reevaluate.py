@@ -29,26 +29,20 @@ def logged(uri: str, run_id: str, prefix: str = "") -> dict[str, dict[str, float
             if f"{prefix}{metrics.eval_key(p, 'success_rate')}" in data}
 
 
-@pytest.fixture
-def in_tmp(store):
-    """The test's store; the test runs in its temp dir (conftest), where MLflow puts the store's ./mlruns."""
-    return store
-
-
-def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tmp_path, capsys):
+def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(store, tmp_path, capsys):
     # Evaluation does not touch training: the same seed trained with eval.wind_speed 3 and 0 learns the same policy,
     # so re-evaluating the first run in still air must give exactly what the second logged.
     windy = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "a")
     still = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", "eval.wind_speed=0", *TINY]), tmp_path / "b")
     assert main(["--experiment", EXP, "--where", "seed=1", "--where", "eval.wind_speed=3.0", "--name", "still_air",
                  "--out", str(tmp_path / "t.md"), "--vs", "ppo", "eval.wind_speed=0"]) == 0
-    again, target, before = logged(in_tmp, windy, "still_air/"), logged(in_tmp, still), logged(in_tmp, windy)
+    again, target, before = logged(store, windy, "still_air/"), logged(store, still), logged(store, windy)
     assert again == target and set(again) == {"final", "best"}
     assert again["final"] != before["final"]  # the wind did change the flights (else the check above shows nothing)
-    client = MlflowClient(in_tmp)
+    client = MlflowClient(store)
     run_info = client.get_run(windy)
     assert run_info.info.status == "FINISHED" and run_info.data.tags["reeval.still_air"] == "eval.wind_speed=0"
-    assert logged(in_tmp, windy) == before  # the run's own evaluation is untouched
+    assert logged(store, windy) == before  # the run's own evaluation is untouched
     step = client.get_metric_history(windy, "still_air/eval/success_rate")[0].step
     assert step == client.get_metric_history(windy, "eval/success_rate")[-1].step
     out = capsys.readouterr().out
@@ -69,12 +63,12 @@ def test_another_protocol_scores_what_a_run_evaluated_under_it_logged(in_tmp, tm
     assert flown == {"eval_best"}
 
 
-def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(in_tmp, tmp_path):
+def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(store, tmp_path):
     # The JAX learner stores its policy as an SB3 model, flown here with torch's forward pass instead of XLA's.
     run_id = run(compose_cfg(["agent=layer_norm", "agent.learner=jax", "seed=2", "wind=paper", *TINY]),
                  tmp_path / "a")
     assert main(["--experiment", EXP, "--where", "agent=layer_norm", "--name", "again"]) == 0
-    again, own = logged(in_tmp, run_id, "again/"), logged(in_tmp, run_id)
+    again, own = logged(store, run_id, "again/"), logged(store, run_id)
     assert set(again) == set(own) == {"final", "best"}
     for policy in own:
         assert again[policy]["success_rate"] == own[policy]["success_rate"]
@@ -83,7 +77,7 @@ def test_a_jax_run_under_its_own_protocol_matches_its_logged_evaluation(in_tmp, 
                                    rtol=1e-3, err_msg=policy)
 
 
-def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsys):
+def test_bad_input_fails_before_any_flight_with_one_line(store, tmp_path, capsys):
     run_id = run(compose_cfg(["agent=ppo", "seed=0", "wind=paper", *TINY]), tmp_path / "a")
     capsys.readouterr()
     cases = [
@@ -102,37 +96,37 @@ def test_bad_input_fails_before_any_flight_with_one_line(in_tmp, tmp_path, capsy
         assert main(["--experiment", EXP, *name, *args]) == 2, args
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, (args, err)
-    assert not any(key.startswith("x/") for key in MlflowClient(in_tmp).get_run(run_id).data.metrics)
+    assert not any(key.startswith("x/") for key in MlflowClient(store).get_run(run_id).data.metrics)
 
     # Every run's config is checked before the first flight: a later run whose stored eval block lacks a key
     # (edited here on disk) stops the command before the earlier, valid run is flown.
     later = run(compose_cfg(["agent=ppo", "seed=1", "wind=paper", *TINY]), tmp_path / "b")
-    stored = Path(MlflowClient(in_tmp).get_run(later).info.artifact_uri.removeprefix("file://")) / "config.yaml"
+    stored = Path(MlflowClient(store).get_run(later).info.artifact_uri.removeprefix("file://")) / "config.yaml"
     cfg = OmegaConf.load(stored)
     del cfg.eval["success_hold_s"]
     OmegaConf.save(cfg, stored)
     assert main(["--experiment", EXP, "--name", "x", "eval.wind_speed=0"]) == 2
     assert "eval.success_hold_s: missing" in capsys.readouterr().err
-    assert not any(key.startswith("x/") for key in MlflowClient(in_tmp).get_run(run_id).data.metrics)
+    assert not any(key.startswith("x/") for key in MlflowClient(store).get_run(run_id).data.metrics)
 
 
-def test_a_run_without_stored_models_is_skipped_and_named(in_tmp, tmp_path, capsys):
+def test_a_run_without_stored_models_is_skipped_and_named(store, tmp_path, capsys):
     run(compose_cfg(["agent=ppo", "seed=3", "wind=paper", "tracking.log_model=false", *TINY]), tmp_path / "a")
     assert main(["--experiment", EXP, "--name", "x"]) == 1
     assert "skipped 1 run(s) without a stored config or model: ppo-paper-s3" in capsys.readouterr().err
 
 
-def test_a_run_archived_with_its_models_scores_the_same_after_import(in_tmp, tmp_path, monkeypatch):
+def test_a_run_archived_with_its_models_scores_the_same_after_import(store, tmp_path, monkeypatch):
     # docs/remedies_study.md re-makes its still-air table from the archive: models exported, imported, flown.
     run_id = run(compose_cfg(["agent=ppo", "seed=5", "wind=none", *TINY]), tmp_path / "a")
-    [path] = export(in_tmp, EXP, tmp_path / "archive", artifacts=("config.yaml", "model*"), where={"wind": "none"})
+    [path] = export(store, EXP, tmp_path / "archive", artifacts=("config.yaml", "model*"), where={"wind": "none"})
     target = f"sqlite:///{tmp_path / 'b.db'}"
     assert import_([path], target) == (1, 0)
-    for uri in (in_tmp, target):
+    for uri in (store, target):
         assert main(["--experiment", EXP, "--uri", uri, "--name", "still_air", "eval.wind_speed=0"]) == 0
     [copy] = [r.info.run_id for r in MlflowClient(target).search_runs(
         [MlflowClient(target).get_experiment_by_name(EXP).experiment_id])]
-    assert logged(target, copy, "still_air/") == logged(in_tmp, run_id, "still_air/")
+    assert logged(target, copy, "still_air/") == logged(store, run_id, "still_air/")
 
 
 def test_a_run_whose_config_predates_a_newer_key_is_checked_on_eval_alone(tmp_path):
