@@ -10,7 +10,7 @@
 #   docs/plasticity_study/run.sh extra-payload   # the same under vehicle=payload
 #   docs/plasticity_study/run.sh combo-flip      # seeds 0-7 of the combination added after the pilot (COMBO)
 #   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
-#   docs/plasticity_study/run.sh main            # main-flip ... combo-payload, in order (what a session resumes)
+#   docs/plasticity_study/run.sh main            # the six phases, the flip change's three first (what a session resumes)
 #   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
 #   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
@@ -62,7 +62,7 @@ case ${1:-} in
   combo-flip)    sweep $COMBO_COMMIT combo-flip wind=flip "seed=${SEEDS:-0,1,2,3,4,5,6,7}" "agent=$COMBO" ;;
   combo-payload) sweep $COMBO_COMMIT combo-payload wind=none vehicle=payload "seed=${SEEDS:-0,1,2,3,4,5,6,7}" \
                    "agent=$COMBO" ;;
-  main)          for phase in main-flip main-payload extra-flip extra-payload combo-flip combo-payload; do
+  main)          for phase in main-flip extra-flip combo-flip main-payload extra-payload combo-payload; do  # one change complete first
                    SEEDS= "$0" "$phase"   # each phase its own seeds (SEEDS=... is for one phase)
                  done ;;
   stop)          drivers=$(pgrep -f "plasticity_study/run.sh (main|pilot-|extra-|combo-)" || true)
