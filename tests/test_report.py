@@ -1364,7 +1364,7 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 
 def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal") -> None:
     """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
-    seeds on a ``wind`` schedule (with ``vehicle``) of segments of 400 steps to 1200, evaluations every 100 steps; the
+    seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of segments of 400 steps to 1200, evaluations every 100 steps; the
     probe (+0.001 x seed) at 400, 800 and 1200."""
     known = client.get_experiment_by_name(experiment)
     exp_id = known.experiment_id if known else client.create_experiment(experiment)
@@ -1373,7 +1373,7 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
             run_id = client.create_run(exp_id, start_time=1_000_000, tags={
                 "agent": agent, "wind": wind, "vehicle": vehicle, "seed": str(seed),
                 "run_name": f"{agent}-{wind}-{vehicle}-s{seed}"}).info.run_id
-            evals = [v for seg in segs for v in seg]
+            evals = [v for seg in (segs[seed] if isinstance(segs, dict) else segs) for v in seg]
             metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
             metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
@@ -1515,6 +1515,42 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     agents = corr.loc[("probe_first", "agents (seed means)")]
     assert agents["rho"] == pytest.approx(-1) and agents["n"] == 3 and np.isnan(agents["rho_low"])
     assert (tmp_path / "out" / "interval_relearning.png").exists()
+
+
+def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
+    """Bimodal seeds: PPO's seed 0 learns segment 0 and re-learns 56.25% (as above), its seed 1 never hovers (0%):
+    1 of 2 seeds learned, re-learning 28.125% over both and 56.25% over the one (no CI from one seed). L2 (100%)
+    and ReDo (75%) learn in both seeds. The probe's first reading within the 5 runs that learned (PPO's seed 1 out):
+    L2 0.010, 0.011, ReDo 0.030, 0.031, PPO 0.050 against re-learning 1, 1, 0.75, 0.75, 0.5625: a perfect inverse
+    ranking up to ties, scipy's spearmanr, n 5 and no CI (< 6 pairs); across all 6 runs PPO's seed 1 (probe 0.051,
+    re-learning 0) is in."""
+    from scipy.stats import spearmanr
+
+    never = [[0.0] * 4] * 3
+    ppo = {0: RELEARN_EVALS["ppo"][0], 1: never}
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_segment_runs(MlflowClient(uri), "bimodal", [(agent, segs, probe, "current") for agent, (segs, probe) in
+                                                    {**RELEARN_EVALS, "ppo": (ppo, RELEARN_EVALS["ppo"][1])}.items()])
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "bimodal")
+    assert code == 0, stdout + stderr
+    got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
+    assert got.loc["ppo", "relearning"] == pytest.approx(0.28125) and got.loc["ppo", "learned_first_seeds"] == 1
+    assert got.loc["ppo", "relearning_if_learned"] == pytest.approx(0.5625)
+    assert np.isnan(got.loc["ppo", "relearning_if_learned_ci95"])
+    assert list(got.loc[["l2", "redo", "reset_all"], "learned_first_seeds"]) == [2, 2, 2]
+    assert list(got.loc[["l2", "redo", "reset_all"], "relearning_if_learned"]) == pytest.approx([1.0, 0.75, 0.625])
+    shown = md_table(tmp_path / "out" / "relearning.md").set_index("Agent")
+    assert shown.loc["PPO", "Learned segment 0 (seeds)"] == "1/2" and shown.loc["L2 + PPO", "Learned segment 0 (seeds)"] == "2/2"
+    assert shown.loc["PPO", "Re-learning AUC, seeds that learned (%)"] == "56"
+    assert shown.loc["L2 + PPO", "Re-learning AUC, seeds that learned (%)"] == "100 ± 0"
+    corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
+    within = corr.loc[("probe_first", "runs that learned segment 0")]
+    probe, relearn = [0.010, 0.011, 0.030, 0.031, 0.050], [1.0, 1.0, 0.75, 0.75, 0.5625]
+    assert within["rho"] == pytest.approx(spearmanr(probe, relearn)[0]) and within["n"] == 5
+    assert np.isnan(within["rho_low"])
+    every = corr.loc[("probe_first", "runs (agents x seeds)")]
+    assert every["n"] == 6 and every["rho"] == pytest.approx(spearmanr(probe + [0.051], relearn + [0.0])[0])
+    assert "runs that learned segment 0" in (tmp_path / "out" / "relearning.md").read_text()
 
 
 def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):

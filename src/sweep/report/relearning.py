@@ -12,6 +12,11 @@ per-segment eval-success AUCs:
 * ``relearning_end``: the mean success at the end of those segments (how much was learned by the next change).
 * ``learned_share``: the share of those segments with an evaluation at >= 50% success (stats.HOVER), and
   ``hover_after``: the median timesteps from a change to that first evaluation, over the segments that reach it.
+* ``learned_first``: 1.0 if the first segment had such an evaluation (the network learned the hover from scratch
+  before the first change), else 0.0. Outcomes on the hover task are bimodal per seed: a seed whose network never
+  learned has lost no plasticity, it never had the skill. So the table also reads ``relearning`` over the seeds
+  that learned, and the probe's correlation within those runs: loss of plasticity proper. (For reset_all the
+  later segments are fresh networks, so its condition selects nothing they depend on.)
 
 ``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
 improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
@@ -33,7 +38,9 @@ from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, 
                                  provenance)
 
 REFERENCE = "reset_all"   # the fresh network at every change
-COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "later_segments"]
+LEARNED_RUNS = "runs that learned segment 0"   # probe_correlation's within-runs reading
+COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "learned_first",
+           "later_segments"]
 MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
 
 
@@ -53,6 +60,8 @@ def per_run(evals: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
                      "hover_after": float(later["hover_after"].median()) if later["hover_after"].notna().any()
                      else np.nan,
                      "first_auc": float(first.iloc[0]) if len(first) else np.nan,
+                     "learned_first": float(g.loc[g["segment"] == 0, "hover_after"].notna().any()) if len(first)
+                     else np.nan,
                      "later_segments": int(len(later))})
     return pd.DataFrame(rows, columns=COLUMNS)
 
@@ -112,6 +121,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         first, first_half, _ = stats.mean_t_ci(g["first_auc"])
         end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
         learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
+        took = g["learned_first"] == 1.0
+        kept, kept_half, _ = stats.mean_t_ci(g.loc[took, "relearning"])
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
@@ -121,6 +132,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                   for i, suffix in enumerate(("", "_low", "_high"))},
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
                "learned_share": learned, "learned_share_ci95": learned_half,
+               "learned_first_seeds": int(took.sum()), "relearning_if_learned": kept,
+               "relearning_if_learned_ci95": kept_half,
                "hover_after_median": float(g["hover_after"].median()),
                **{c.final: g[c.final].mean() for c in finals}}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
@@ -131,6 +144,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  **{column: cell for a in extra for column, cell in (
                      (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * x for x in delta[a]), 0)),
                      (f"P(> {conds.labels.get(a, a)}) [95% CI]", interval(*poi[a], 2)))},
+                 "Learned segment 0 (seeds)": f"{int(took.sum())}/{int(g['learned_first'].notna().sum())}",
+                 "Re-learning AUC, seeds that learned (%)": plus_minus(100 * kept, 100 * kept_half, 0),
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
                  "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
@@ -147,16 +162,18 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
 
 def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataFrame) -> pd.DataFrame:
     """Spearman's rho [95% CI] between a probe reading (probe_readings) and ``relearning``, per wind: across runs
-    (agents x seeds) and across conditions (their seed means); reset_all left out (its probe reads a fresh network
-    by construction). A plastic network fits the probe well (low loss), so a probe that predicts re-learning gives
-    a negative rho."""
+    (agents x seeds), across the runs that learned the first segment (``learned_first``: does the probe still
+    predict re-learning once "never learned at all" is out?) and across conditions (their seed means); reset_all
+    left out (its probe reads a fresh network by construction). A plastic network fits the probe well (low loss),
+    so a probe that predicts re-learning gives a negative rho."""
     df = runs.loc[runs["agent"] != REFERENCE, ["run_id", "wind", "condition"]]
     df = df.merge(relearn, on="run_id").merge(probe, on="run_id")
     rows = []
     for wind, dw in df.groupby("wind"):
         means = dw.groupby("condition")[["relearning", "probe_first", "probe_mean"]].mean()
         for reading in ("probe_first", "probe_mean"):
-            for across, d in (("runs (agents x seeds)", dw), ("agents (seed means)", means)):
+            for across, d in (("runs (agents x seeds)", dw), (LEARNED_RUNS, dw[dw["learned_first"] == 1.0]),
+                              ("agents (seed means)", means)):
                 rho, low, high, n = spearman_ci(d[reading], d["relearning"])
                 rows.append({"wind": wind, "reading": reading, "across": across, "rho": rho, "rho_low": low,
                              "rho_high": high, "n": n})
@@ -184,8 +201,10 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
             "shorter run) average fewer changes. First segment AUC = learning from scratch (left out of the "
             "measure); success at "
             "segment ends = the mean over the later segments of the last evaluation before the next change; "
-            "segments hovered = the share of the later segments with an evaluation at >= 50% success; steps to "
-            "hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
+            "segments hovered = the share of the later segments with an evaluation at >= 50% success; learned "
+            "segment 0 = the seeds whose first segment had such an evaluation (learned the hover from scratch), and "
+            "the re-learning AUC over those seeds alone (a seed that never learned has no plasticity to lose); "
+            "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     written = [out / "relearning.csv", out / "relearning.md"]
     probe = probe_readings(histories)
@@ -198,7 +217,8 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
                                                       for r in corr.itertuples()]})
         text += ("\n\nDoes the probe predict re-learning? Spearman's rank correlation between a run's probe loss "
                  "(plasticity/probe_loss: a copy of the policy fitted to random targets; higher = less plastic) and "
-                 f"its re-learning AUC, across runs and across agents (seed means), {REFERENCE} left out (its probe at "
+                 f"its re-learning AUC, across runs, across the {LEARNED_RUNS} and across agents (seed means), "
+                 f"{REFERENCE} left out (its probe at "
                  "a change reads the freshly drawn network), 95% percentile-bootstrap CI (pairs resampled; none "
                  f"below {MIN_CI_PAIRS} pairs). A probe that predicts re-learning gives ρ < 0.\n\n" + markdown(shown))
         written.append(out / "probe_correlation.csv")
