@@ -326,11 +326,14 @@ def expected_curves(store: str, experiment: str) -> set[str]:
             continue
         length = int(r.data.params["wind.segment_steps"])
         total = int(r.data.params.get("train.total_timesteps", 1 << 62))
-        steps = {m.step for m in client.get_metric_history(r.info.run_id, "eval/success_rate")}
+        history = client.get_metric_history(r.info.run_id, "eval/success_rate")
+        steps = {m.step for m in history}
         if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
             stems.add("segment_scores")
             if r.data.params.get("eval.condition") == "current":   # and re-learning in the segments after the first
                 stems.add("interval_relearning")
+                if any(0 < m.step <= length and m.value >= 0.5 for m in history):   # a run that learned segment 0
+                    stems.add("segment_scores_learned")
     finals = {k for r in runs for k in r.data.metrics}
     stems |= {f"interval_{name}" for name, key in [("final_reward", "rollout/ep_rew_mean"),
                                                     ("success_final", "eval/success_rate"),
@@ -339,7 +342,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
 
 
 PANELLED = ("eval_flights_3d", "eval_position_axes",  # a panel per condition: one column wide whatever --by says
-            "segment_scores")  # agents side by side in one column per wind
+            "segment_scores", "segment_scores_learned")  # agents side by side in one column per wind
 
 
 # -- tests ---------------------------------------------------------------------------------------------------
@@ -1442,7 +1445,8 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, mon
     assert set(got["wind"]) == {"flip", "none+payload"}
     shown = md_table(tmp_path / "out" / "segment_scores.md")
     assert sorted(shown["Wind"]) == ["flip", "flip", "none+payload", "none+payload"]   # PPO and reset_all per arm
-    assert sorted((tmp_path / "out").glob("segment_scores*.png")) == [tmp_path / "out" / "segment_scores.png"]
+    assert sorted(p.name for p in (tmp_path / "out").glob("segment_scores*.png")) == [
+        "segment_scores.png", "segment_scores_learned.png"]
     height, width = image.imread(tmp_path / "out" / "segment_scores.png").shape[:2]
     assert 1700 <= width <= 2200 and height > 900, (width, height)   # both columns of the page, two rows
     # re-made from the same runs, every file has the same bytes (PDFs carry no creation date): a committed report
@@ -1551,6 +1555,15 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     every = corr.loc[("probe_first", "runs (agents x seeds)")]
     assert every["n"] == 6 and every["rho"] == pytest.approx(spearmanr(probe + [0.051], relearn + [0.0])[0])
     assert "runs that learned segment 0" in (tmp_path / "out" / "relearning.md").read_text()
+    # per segment over the seeds that learned segment 0: PPO's seed 0 alone (AUC 62.5, 100, 12.5), reset_all's both
+    learned = pd.read_csv(tmp_path / "out" / "segment_scores_learned.csv").set_index(["agent", "segment"])
+    assert list(learned.loc["ppo", "auc_mean"]) == [0.625, 1.0, 0.125] and set(learned.loc["ppo", "n_seeds"]) == {1}
+    assert list(learned.loc["ppo", "auc_vs_reset_all"]) == [0.0, 0.375, -0.5]
+    assert set(learned.loc["reset_all", "n_seeds"]) == {2}
+    every = pd.read_csv(tmp_path / "out" / "segment_scores.csv").set_index(["agent", "segment"])
+    assert list(every.loc["ppo", "auc_mean"]) == [0.3125, 0.5, 0.0625]   # both seeds
+    assert "the seeds that learned segment 0" in (tmp_path / "out" / "segment_scores_learned.md").read_text()
+    assert (tmp_path / "out" / "segment_scores_learned.png").exists()
 
 
 def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):

@@ -14,8 +14,8 @@ and of the best one kept during training, side by side, and the top seed's numbe
 outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule), leaderboard.{md,csv}
 (runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
 reference agents on that measure). Runs evaluated in two segments of the schedule or more (the plasticity study)
-add segment_scores.{md,csv} and the figure segment_scores (per segment against reset_all, a column per wind),
-relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to it,
+add segment_scores.{md,csv} and the figure segment_scores (per segment against reset_all, a column per wind), the
+same over the seeds that learned segment 0 (segment_scores_learned.{md,csv,png}), relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to it,
 probe_correlation.csv) and interval_relearning.
 """
 from __future__ import annotations
@@ -123,6 +123,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
 
     written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals, scores)
     written += relearning.write(runs, per_run, histories, relearn, conds, out_dir, vs)
+    written += relearning.write_learned(runs, evals, relearn, conds, shown, out_dir)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))

@@ -32,10 +32,10 @@ import numpy as np
 import pandas as pd
 
 from sweep.metrics import CURVES, PROBE
-from sweep.report import stats
+from sweep.report import figures, stats
 from sweep.report.conditions import baseline_of
 from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, interval, markdown, plus_minus,
-                                 provenance)
+                                 provenance, segment_scores)
 
 REFERENCE = "reset_all"   # the fresh network at every change
 LEARNED_RUNS = "runs that learned segment 0"   # probe_correlation's within-runs reading
@@ -178,6 +178,40 @@ def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataF
                 rows.append({"wind": wind, "reading": reading, "across": across, "rho": rho, "rho_low": low,
                              "rho_high": high, "n": n})
     return pd.DataFrame(rows, columns=["wind", "reading", "across", "rho", "rho_low", "rho_high", "n"])
+
+
+def learned_segments(evals: pd.DataFrame, runs: pd.DataFrame, relearn: pd.DataFrame,
+                     reference: str = REFERENCE) -> pd.DataFrame:
+    """The per-segment evaluations (stats.segment_evaluations) of the runs that learned segment 0 (``relearn``'s
+    ``learned_first``) and of every run of ``reference``: its later segments are freshly drawn networks, which
+    its own segment 0 does not select."""
+    keep = set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]) | set(runs.loc[runs["agent"] == reference,
+                                                                                     "run_id"])
+    return evals[evals["run_id"].isin(keep)]
+
+
+LEARNED_TITLE = f"the seeds that learned segment 0 ({REFERENCE}: every seed)"
+
+
+def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame, conds, shown, out) -> list:
+    """segment_scores_learned.csv/.md and its figure: tables.segment_scores over learned_segments, i.e. per segment
+    what a network that once learned the hover does after each change, against fresh networks. A decline of
+    the agent's Δ with the segment index there is loss of plasticity proper, not seeds that never learned."""
+    if not len(relearn) or not (relearn["learned_first"] == 1.0).any():
+        return []
+    numbers, display = segment_scores(runs, learned_segments(evals, runs, relearn), conds)
+    numbers.to_csv(out / "segment_scores_learned.csv", index=False)
+    (out / "segment_scores_learned.md").write_text(
+        provenance(runs) + f"segment_scores.md over {LEARNED_TITLE}: a seed that never hovered in segment 0 has no "
+        "skill to lose, and outcomes on the hover task are bimodal per seed, so the table over every seed mixes "
+        "'never learned' with 'stopped re-learning'. Seeds = the runs kept; Δ = against reset_all over all its "
+        "seeds (95% percentile bootstrap). Segment 0's Δ is positive by selection; a Δ that falls below 0 and "
+        "keeps falling with the segment index on the later segments is loss of plasticity.\n\n"
+        "## Learning speed: eval-success AUC within the segment (%)\n\n" + markdown(display["auc"].fillna("–"))
+        + "\n\n## Success at the segment's end (%)\n\n" + markdown(display["end"].fillna("–")))
+    return ([out / "segment_scores_learned.csv", out / "segment_scores_learned.md"]
+            + figures.segment_scores(numbers, conds, shown, out, name="segment_scores_learned",
+                                     runs_shown=LEARNED_TITLE))
 
 
 READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings"}
