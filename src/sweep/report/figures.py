@@ -282,7 +282,8 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
     axes[0, 0].set_ylim(-3, 103)
     if has_diff:
         axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
-    fig.suptitle("Learning per segment: mean over " + (runs_shown or "seeds") + ", bars 95% CI", fontsize="small")
+    fig.suptitle(textwrap.fill("Learning per segment: mean over " + (runs_shown or "seeds") + ", bars 95% CI",
+                               70 * len(winds)), fontsize="small")
     grey = [label for cond, label in grey.items() if cond not in handles]   # grey in every arm
     note = textwrap.fill("grey, no bars: " + ", ".join(grey), 100 * len(winds)) if grey else None
     ordered = [handles[c] for c in conds.order if c in handles]

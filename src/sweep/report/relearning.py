@@ -183,14 +183,14 @@ def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataF
 def learned_segments(evals: pd.DataFrame, runs: pd.DataFrame, relearn: pd.DataFrame,
                      reference: str = REFERENCE) -> pd.DataFrame:
     """The per-segment evaluations (stats.segment_evaluations) of the runs that learned segment 0 (``relearn``'s
-    ``learned_first``) and of every run of ``reference``: its later segments are freshly drawn networks, which
-    its own segment 0 does not select."""
-    keep = set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]) | set(runs.loc[runs["agent"] == reference,
-                                                                                     "run_id"])
-    return evals[evals["run_id"].isin(keep)]
+    ``learned_first``), every agent's alike in segment 0, and in the later segments every run of ``reference``:
+    those are freshly drawn networks, which its own segment 0 does not select."""
+    learned = evals["run_id"].isin(set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]))
+    fresh = evals["run_id"].isin(set(runs.loc[runs["agent"] == reference, "run_id"])) & (evals["segment"] >= 1)
+    return evals[learned | fresh]
 
 
-LEARNED_TITLE = f"the seeds that learned segment 0 ({REFERENCE}: every seed)"
+LEARNED_TITLE = f"the seeds that learned segment 0 ({REFERENCE} after it: every seed)"
 
 
 def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame, conds, shown, out) -> list:
@@ -205,8 +205,10 @@ def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
         provenance(runs) + f"segment_scores.md over {LEARNED_TITLE}: a seed that never hovered in segment 0 has no "
         "skill to lose, and outcomes on the hover task are bimodal per seed, so the table over every seed mixes "
         "'never learned' with 'stopped re-learning'. Seeds = the runs kept; Δ = against reset_all over all its "
-        "seeds (95% percentile bootstrap). Segment 0's Δ is positive by selection; a Δ that falls below 0 and "
-        "keeps falling with the segment index on the later segments is loss of plasticity.\n\n"
+        "seeds in the later segments (fresh networks, which its segment 0 does not select), 95% percentile "
+        "bootstrap; in segment 0 every agent is read over its seeds that learned it. Forward transfer makes the "
+        "later Δ positive; a Δ that falls below 0 and keeps falling with the segment index is loss of "
+        "plasticity.\n\n"
         "## Learning speed: eval-success AUC within the segment (%)\n\n" + markdown(display["auc"].fillna("–"))
         + "\n\n## Success at the segment's end (%)\n\n" + markdown(display["end"].fillna("–")))
     return ([out / "segment_scores_learned.csv", out / "segment_scores_learned.md"]
