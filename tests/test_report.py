@@ -1408,6 +1408,11 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert ends.loc["PPO", "2 (800–1.2k)"] == "50 ± 0 (Δ -50 [-50, -50])" and ends.loc["PPO", "1 (400–800)"] == "100 ± 0 (Δ 0 [0, 0])"
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
     assert (tmp_path / "out" / "segment_scores.png").exists()
+    per_run = pd.read_csv(tmp_path / "out" / "segment_runs.csv")   # the same numbers per run: 2 agents x 2 seeds x 3
+    assert len(per_run) == 12 and list(per_run.columns[:6]) == ["run_id", "run_name", "agent", "condition", "wind", "seed"]
+    ppo = per_run[(per_run["agent"] == "ppo") & (per_run["seed"] == 1)]
+    assert list(ppo["segment"]) == [0, 1, 2] and list(ppo["auc"]) == [0.625, 1.0, 0.125]
+    assert list(ppo["end"]) == [1.0, 1.0, 0.5] and list(ppo["hover_after"]) == [200, 100, 400]
     assert "missing: agent=" not in stdout   # a study of flips only is not asked for the paper's winds and agents
 
 

@@ -463,6 +463,9 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():   # in-training evaluations per segment
         e_numbers, e_display = segment_scores(runs, evals, conds) if scores is None else scores
         e_numbers.to_csv(out / "segment_scores.csv", index=False)
+        per_segment = runs[["run_id", "run_name", "agent", "condition", "wind", "seed"]].merge(evals, on="run_id")
+        per_segment.sort_values(["wind", "agent", "condition", "seed", "segment"]).to_csv(
+            out / "segment_runs.csv", index=False)   # every run's segments: for analyses the report does not make
         flown = ", ".join(sorted({str(v) for v in runs.get("eval_condition", pd.Series(dtype=object)).dropna()})) or "fixed"
         (out / "segment_scores.md").write_text(
             made + "Learning within each segment of the schedule (segment k = timesteps (k S, (k+1) S], S = "
@@ -475,7 +478,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
             "## Learning speed: eval-success AUC within the segment (%)\n\n" + markdown(e_display["auc"].fillna("–"))
             + "\n\n## Success at the segment's end (%): the last evaluation before the next change\n\n"
             + markdown(e_display["end"].fillna("–")))
-        written_segments = [out / "segment_scores.csv", out / "segment_scores.md"]
+        written_segments = [out / "segment_scores.csv", out / "segment_scores.md", out / "segment_runs.csv"]
     else:
         written_segments = []
     (out / "brief.txt").write_text(brief(s_display))
