@@ -1281,6 +1281,12 @@ def test_intervals_are_the_seed_mean_with_its_t_interval_and_the_iqm_with_its_bo
     half = t_dist.ppf(0.975, 2) * np.std(values, ddof=1) / np.sqrt(3)
     assert intervals.estimate(values, "mean") == pytest.approx((0.5, 0.5 - half, 0.5 + half, 3))
     assert intervals.estimate([0.4, np.nan], "mean") == (0.4, 0.4, 0.4, 1)  # one seed: a point, no interval
+    # a share in percent: the t-interval of 0, 50, 100 reaches past both ends and is cut to [0, 100]
+    runs, conds = conditions.build(pd.DataFrame({"run_id": ["a", "b", "c"], "agent": "ppo", "label": "PPO",
+                                                 "wind": "flip", "start_time": 0, "share": values}), [])
+    for percent, bounds in ((True, (0.0, 100.0)), (False, (100 * (0.5 - half), 100 * (0.5 + half)))):
+        got = intervals.estimates(runs, intervals.Measure("share", "Share", "mean", 100.0, percent), conds)
+        assert tuple(got[["low", "high"]].iloc[0]) == pytest.approx(bounds) and got["point"].iloc[0] == 50.0
     rewards = [-300.0, -250.0, -100.0, -90.0, -80.0, -20.0, 0.0, 10.0]
     point, lo, hi, n = intervals.estimate(rewards, "iqm")
     assert point == pytest.approx(trim_mean(rewards, 0.25)) and (lo, hi) == stats.iqm_ci(rewards)[1:] and n == 8

@@ -15,8 +15,9 @@ outcome per condition), segments.{md,csv} (training reward in each hold of the w
 (runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
 reference agents on that measure). Runs evaluated in two segments of the schedule or more (the plasticity study)
 add segment_scores.{md,csv} and the figure segment_scores (per segment against reset_all, a column per wind), the
-same over the seeds that learned segment 0 (segment_scores_learned.{md,csv,png}), relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to it,
-probe_correlation.csv) and interval_relearning.
+same over the seeds that learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's
+segments), relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to
+it, probe_correlation.csv) and interval_relearning.
 """
 from __future__ import annotations
 

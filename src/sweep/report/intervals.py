@@ -28,7 +28,8 @@ LABEL_WIDTH = 26       # characters per line of an agent's label
 @dataclass(frozen=True)
 class Measure:
     """A per-run column aggregated over seeds: by its mean with a 95% Student-t CI (``mean``) or by rliable's IQM
-    with a 95% stratified-bootstrap CI (``iqm``), drawn times ``scale``."""
+    with a 95% stratified-bootstrap CI (``iqm``), drawn times ``scale``. A ``percent`` measure lies in [0, 100],
+    and its CI is cut there (a t-interval over few bimodal seeds reaches past both ends)."""
     column: str
     title: str
     statistic: str
@@ -68,7 +69,8 @@ def estimate(values, statistic: str) -> tuple[float, float, float, int]:
 
 def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
     """One row per panel (arm: 'wind W' and the --by values) and condition with runs that have the measure:
-    panel, condition, agent, label, point, low, high, n; each panel's rows sorted by the point, highest last."""
+    panel, condition, agent, label, point, low, high, n; each panel's rows sorted by the point, highest last; a
+    percent measure's CI cut to [0, 100]."""
     rows = []
     for wind in sorted(df["wind"].unique(), key=lambda w: (w != "paper", w)):
         dw = df[df["wind"] == wind]
@@ -77,10 +79,13 @@ def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
             panel = []
             for cond in shown:
                 point, lo, hi, n = estimate(dw.loc[dw["condition"] == cond, measure.column], measure.statistic)
+                lo, hi = measure.scale * lo, measure.scale * hi
+                if measure.percent:
+                    lo, hi = max(lo, 0.0), min(hi, 100.0)
                 if n:
                     panel.append({"panel": arm, "condition": cond, "agent": conds.agent(cond),
                                   "label": conds.series(cond), "point": measure.scale * point,
-                                  "low": measure.scale * lo, "high": measure.scale * hi, "n": n})
+                                  "low": lo, "high": hi, "n": n})
             rows += sorted(panel, key=lambda r: r["point"])  # stable: ties keep the display order
     return pd.DataFrame(rows, columns=["panel", "condition", "agent", "label", "point", "low", "high", "n"])
 
@@ -123,6 +128,7 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
     if measure.percent:
         axes[0, 0].set_xlim(-3, 103)
     reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""
-    fig.supxlabel(textwrap.fill(f"{measure.title}; {STATISTIC[measure.statistic]}{reference}", 60 * len(panels)),
+    cut = " (cut to 0–100)" if measure.percent else ""
+    fig.supxlabel(textwrap.fill(f"{measure.title}; {STATISTIC[measure.statistic]}{cut}{reference}", 60 * len(panels)),
                   fontsize=7)
     return figures.save(fig, out, f"interval_{name}")
