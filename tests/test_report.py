@@ -1373,8 +1373,8 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 
 def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal") -> None:
     """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
-    seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of segments of 400 steps to 1200, evaluations every 100 steps; the
-    probe (+0.001 x seed) at 400, 800 and 1200."""
+    seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of
+    segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400, 800 and 1200."""
     known = client.get_experiment_by_name(experiment)
     exp_id = known.experiment_id if known else client.create_experiment(experiment)
     for agent, segs, probe, condition in runs:
@@ -1415,7 +1415,8 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
     assert "eval.condition = current" in (tmp_path / "out" / "segment_scores.md").read_text()
     assert (tmp_path / "out" / "segment_scores.png").exists()
     per_run = pd.read_csv(tmp_path / "out" / "segment_runs.csv")   # the same numbers per run: 2 agents x 2 seeds x 3
-    assert len(per_run) == 12 and list(per_run.columns[:6]) == ["run_id", "run_name", "agent", "condition", "wind", "seed"]
+    assert len(per_run) == 12 and list(per_run.columns[:7]) == ["run_id", "run_name", "agent", "condition", "wind",
+                                                                "seed", "eval_condition"]
     ppo = per_run[(per_run["agent"] == "ppo") & (per_run["seed"] == 1)]
     assert list(ppo["segment"]) == [0, 1, 2] and list(ppo["auc"]) == [0.625, 1.0, 0.125]
     assert list(ppo["end"]) == [1.0, 1.0, 0.5] and list(ppo["hover_after"]) == [200, 100, 400]
@@ -1538,8 +1539,9 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     and ReDo (75%) learn in both seeds. The probe's first reading within the 5 runs that learned (PPO's seed 1 out):
     L2 0.010, 0.011, ReDo 0.030, 0.031, PPO 0.050 against re-learning 1, 1, 0.75, 0.75, 0.5625: a perfect inverse
     ranking up to ties, scipy's spearmanr, n 5 and no CI (< 6 pairs); across all 6 runs PPO's seed 1 (probe 0.051,
-    re-learning 0) is in. reset_all's seed 1 fails its first network only: 1 of 2 learned segment 0, and per
-    segment over the seeds that learned it reset_all keeps that one in segment 0 and both after it."""
+    re-learning 0) is in. reset_all's seed 1 fails its first network only: 1 of 2 learned segment 0. Per segment
+    over the seeds that learned it (every agent alike), the gain over the run's own segment 0: PPO 0, +37.5, -50
+    points, ReDo 0, +37.5, -12.5 (both seeds: a zero-width CI)."""
     from scipy.stats import spearmanr
 
     never = [[0.0] * 4] * 3
@@ -1559,7 +1561,8 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     assert list(got.loc[["l2", "redo", "reset_all"], "learned_first_seeds"]) == [2, 2, 1]
     assert list(got.loc[["l2", "redo", "reset_all"], "relearning_if_learned"]) == pytest.approx([1.0, 0.75, 0.625])
     shown = md_table(tmp_path / "out" / "relearning.md").set_index("Agent")
-    assert shown.loc["PPO", "Learned segment 0 (seeds)"] == "1/2" and shown.loc["L2 + PPO", "Learned segment 0 (seeds)"] == "2/2"
+    learned_first = shown["Learned segment 0 (seeds)"]
+    assert learned_first["PPO"] == "1/2" and learned_first["L2 + PPO"] == "2/2"
     assert shown.loc["PPO", "Re-learning AUC, seeds that learned (%)"] == "56"
     assert shown.loc["L2 + PPO", "Re-learning AUC, seeds that learned (%)"] == "100 ± 0"
     corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
@@ -1570,13 +1573,18 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     every = corr.loc[("probe_first", "runs (agents x seeds)")]
     assert every["n"] == 6 and every["rho"] == pytest.approx(spearmanr(probe + [0.051], relearn + [0.0])[0])
     assert "runs that learned segment 0" in (tmp_path / "out" / "relearning.md").read_text()
-    # per segment over the seeds that learned segment 0: PPO's seed 0 alone (AUC 62.5, 100, 12.5); reset_all's seed
-    # 0 in segment 0 and both seeds' fresh networks after it
+    # per segment over the seeds that learned segment 0: PPO's seed 0 alone (AUC 62.5, 100, 12.5), reset_all's too
     learned = pd.read_csv(tmp_path / "out" / "segment_scores_learned.csv").set_index(["agent", "segment"])
     assert list(learned.loc["ppo", "auc_mean"]) == [0.625, 1.0, 0.125] and set(learned.loc["ppo", "n_seeds"]) == {1}
-    assert list(learned.loc["ppo", "auc_vs_reset_all"]) == [0.0, 0.375, -0.5]
-    assert list(learned.loc["reset_all", "n_seeds"]) == [1, 2, 2]
-    assert list(learned.loc["reset_all", "auc_mean"]) == [0.625] * 3
+    assert list(learned.loc["ppo", "auc_vs_first"]) == [0.0, 0.375, -0.5]
+    assert learned.loc["ppo", "auc_vs_first_low"].isna().all()   # one seed: no interval
+    assert list(learned.loc["redo", "auc_vs_first"]) == [0.0, 0.375, -0.125]
+    assert list(learned.loc["redo", "auc_vs_first_low"]) == list(learned.loc["redo", "auc_vs_first_high"])
+    assert list(learned.loc["reset_all", "n_seeds"]) == [1, 1, 1]
+    assert list(learned.loc["reset_all", "auc_vs_first"]) == [0.0] * 3
+    assert not [c for c in learned.columns if "reset_all" in c]   # no comparison across differently chosen seeds
+    cells = md_table(tmp_path / "out" / "segment_scores_learned.md").set_index("Agent")
+    assert cells.loc["redo", "2"] == "50 ± 0 (gain -12 [-12, -12])" and cells.loc["PPO", "2"] == "12 (gain -50)"
     every = pd.read_csv(tmp_path / "out" / "segment_scores.csv").set_index(["agent", "segment"])
     assert list(every.loc["ppo", "auc_mean"]) == [0.3125, 0.5, 0.0625]   # both seeds
     assert "the seeds that learned segment 0" in (tmp_path / "out" / "segment_scores_learned.md").read_text()

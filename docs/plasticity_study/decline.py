@@ -12,7 +12,8 @@ Per change and agent: the mean decline (95% Student-t CI) and its difference to 
 95% percentile bootstrap, sweep.report.stats). Over every seed, and over the seeds that learned segment 0 (an
 evaluation at >= 50% in it; reset_all's later segments are fresh networks, so all its seeds). Defined on 12-05,
 after main-flip's 8 seeds of every agent had been seen in the report (not computed on them), before the extra
-seeds and the payload change. Run from the repo root on a report folder:
+seeds and the payload change. Only runs evaluated under the condition being learned (eval.condition=current).
+Run from the repo root on a report folder (run.sh report writes docs/plasticity_study/main):
 
     .venv/bin/python docs/plasticity_study/decline.py docs/plasticity_study/main
 """
@@ -23,44 +24,50 @@ import numpy as np
 import pandas as pd
 
 from sweep.report import stats
+from sweep.report.tables import interval, plus_minus
 
 EARLY, LATE = (1, 2), (3, 4, 5)
 
 
 def declines(per_segment: pd.DataFrame) -> pd.DataFrame:
-    """Per run: early, late and decline (fractions), and whether it learned segment 0."""
+    """Per run (segment_runs.csv rows evaluated under eval.condition=current, with every segment of EARLY and
+    LATE): early, late and decline (fractions), and whether it learned segment 0."""
+    current = per_segment[per_segment["eval_condition"] == "current"]
     rows = []
-    for (wind, agent, seed), g in per_segment.groupby(["wind", "agent", "seed"]):
-        auc = g.set_index("segment")["auc"]
+    for (wind, agent, condition, run_id), run in current.groupby(["wind", "agent", "condition", "run_id"]):
+        auc = run.set_index("segment")["auc"]
         if not set(EARLY + LATE) <= set(auc.index):
             continue
         early, late = auc.loc[list(EARLY)].mean(), auc.loc[list(LATE)].mean()
-        learned = 0 in auc.index and bool(g.loc[g["segment"] == 0, "hover_after"].notna().any())
-        rows.append({"wind": wind, "agent": agent, "seed": seed, "early": early, "late": late,
-                     "decline": early - late, "learned_first": learned or agent == "reset_all"})
+        learned = bool(run.loc[run["segment"] == 0, "hover_after"].notna().any())
+        rows.append({"wind": wind, "agent": agent, "condition": condition, "run_id": run_id, "early": early,
+                     "late": late, "decline": early - late, "learned_first": learned or agent == "reset_all"})
     return pd.DataFrame(rows)
 
 
-def table(d: pd.DataFrame) -> str:
+def table(runs: pd.DataFrame) -> str:
+    """Markdown: per change and condition (sorted by the mean decline), the seeds, the mean early and late AUC (%),
+    the mean decline ± 95% t CI and its difference to PPO's [95% bootstrap CI] (points)."""
     lines = ["| Change | Agent | Seeds | Early (%) | Late (%) | Decline (pp) | Decline − PPO's (pp) [95% CI] |",
              "|---|---|---|---|---|---|---|"]
-    for wind, w in d.groupby("wind"):
-        ppo = w.loc[w["agent"] == "ppo", "decline"]
-        order = w.groupby("agent")["decline"].mean().sort_values().index
-        for agent in order:
-            g = w[w["agent"] == agent]
-            mean, half, n = stats.mean_t_ci(100 * g["decline"])
-            diff = stats.mean_diff_ci(g["decline"], ppo) if agent != "ppo" else (np.nan,) * 3
-            versus = "–" if not np.isfinite(diff[0]) else "{:+.0f} [{:+.0f}, {:+.0f}]".format(*(100 * x for x in diff))
-            lines.append(f"| {wind} | {agent} | {n} | {100 * g['early'].mean():.0f} | {100 * g['late'].mean():.0f} "
-                         f"| {mean:+.0f} ± {half:.0f} | {versus} |")
+    for wind, change in runs.groupby("wind"):
+        ppo = change.loc[change["agent"] == "ppo", "decline"]
+        for condition in change.groupby("condition")["decline"].mean().sort_values().index:
+            mine = change[change["condition"] == condition]
+            mean, half, n = stats.mean_t_ci(100 * mine["decline"])
+            versus = (stats.mean_diff_ci(100 * mine["decline"], 100 * ppo) if (mine["agent"] != "ppo").all()
+                      else (np.nan,) * 3)
+            lines.append(f"| {wind} | {condition} | {n} | {100 * mine['early'].mean():.0f} | "
+                         f"{100 * mine['late'].mean():.0f} | {plus_minus(mean, half, 0)} | {interval(*versus, 0)} |")
     return "\n".join(lines)
 
 
-def main(report: str) -> None:
-    d = declines(pd.read_csv(Path(report) / "segment_runs.csv"))
-    print("Every seed:\n\n" + table(d))
-    print("\nThe seeds that learned segment 0 (reset_all: every seed):\n\n" + table(d[d["learned_first"]]))
+def main(report: str = "") -> None:
+    if not report:
+        sys.exit("usage: decline.py REPORT_FOLDER (with segment_runs.csv: python -m sweep.report --out ...)")
+    runs = declines(pd.read_csv(Path(report) / "segment_runs.csv"))
+    print("Every seed:\n\n" + table(runs))
+    print("\nThe seeds that learned segment 0 (reset_all: every seed):\n\n" + table(runs[runs["learned_first"]]))
 
 
 if __name__ == "__main__":

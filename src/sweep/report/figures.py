@@ -229,15 +229,16 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
 
 
 def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: str = "reset_all",
-                   name: str = "segment_scores", runs_shown: str = "") -> list[Path]:
+                   name: str = "segment_scores", runs_shown: str = "", diff_label: str = "") -> list[Path]:
     """Figure segment_scores (tables.segment_scores' numbers), small multiples with one column per arm (training
     wind and vehicle: one change of condition each): per segment of the schedule, each agent's eval-success AUC
     (top row) and its difference to ``reference`` on that segment (bottom row, where the reference ran), agents side
     by side at each segment with 95% CIs as bars, each agent's points joined by a line across the segments, axes
     shared so the changes compare at a glance. With more than highlight.MAX_COLOURED agents in an arm only those
     ``shown`` colours there (its top by the primary measure, PPO, the reference, --highlight) are in colour and in
-    the legend; the rest are thin grey, no bars. ``name``: the file stem; ``runs_shown``: which runs, in the title
-    (relearning.write_learned draws the seeds that learned segment 0 as segment_scores_learned)."""
+    the legend; the rest are thin grey, no bars. ``name``: the file stem; ``runs_shown``: which runs, in the title;
+    ``diff_label``: the bottom row's label (relearning.write_learned draws the seeds that learned segment 0 and
+    their gain over their own segment 0, columns auc_vs_first, as segment_scores_learned)."""
     if numbers.empty:
         return []
     winds = sorted(numbers["wind"].unique(), key=lambda w: (w != "paper", w))
@@ -281,7 +282,7 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
     axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
     axes[0, 0].set_ylim(-3, 103)
     if has_diff:
-        axes[1, 0].set_ylabel(f"Δ AUC vs {reference}\n(points)")
+        axes[1, 0].set_ylabel(diff_label or f"Δ AUC vs {reference}\n(points)")
     fig.suptitle(textwrap.fill("Learning per segment: mean over " + (runs_shown or "seeds") + ", bars 95% CI",
                                70 * len(winds)), fontsize="small")
     grey = [label for cond, label in grey.items() if cond not in handles]   # grey in every arm

@@ -13,18 +13,19 @@ per-segment eval-success AUCs:
 * ``learned_share``: the share of those segments with an evaluation at >= 50% success (stats.HOVER), and
   ``hover_after``: the median timesteps from a change to that first evaluation, over the segments that reach it.
 * ``learned_first``: 1.0 if the first segment had such an evaluation (the network learned the hover from scratch
-  before the first change), else 0.0. Outcomes on the hover task are bimodal per seed: a seed whose network never
-  learned has lost no plasticity, it never had the skill. So the table also reads ``relearning`` over the seeds
-  that learned, and the probe's correlation within those runs: loss of plasticity proper. (For reset_all the
-  later segments are fresh networks, so its condition selects nothing they depend on.)
+  before the first change), else 0.0 (NaN without evaluations in it). Outcomes on the hover task are bimodal per
+  seed: a seed whose network never learned has lost no plasticity, it never had the skill. So the table also
+  reads ``relearning`` over the seeds that learned, the probe's correlation within those runs, and
+  ``segment_gains`` per segment over them. (reset_all's later segments are fresh networks, so over its seeds that
+  learned they read how often a fresh draw re-learns on those seeds.)
 
 ``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
 improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
 plasticity problem and no prior knowledge would do). ``probe_correlation`` asks whether the probe (Lyle et al.'s
 fit to random targets, which needs no change of task) ranks runs as their re-learning does: Spearman's rank
-correlation between a run's probe loss and its ``relearning``, across runs (agents x seeds) and across agents
-(seed means), with 95% bootstrap CIs. reset_all is left out of it: its remedy hook runs before the probe at every
-change, so its probe reads a freshly drawn network by construction.
+correlation between a run's probe loss and its ``relearning``, across runs (agents x seeds), across the runs that
+learned segment 0 and across agents (seed means), with 95% bootstrap CIs. reset_all is left out of it: its remedy
+hook runs before the probe at every change, so its probe reads a freshly drawn network by construction.
 """
 from __future__ import annotations
 
@@ -39,6 +40,8 @@ from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, 
 
 REFERENCE = "reset_all"   # the fresh network at every change
 LEARNED_RUNS = "runs that learned segment 0"   # probe_correlation's within-runs reading
+LEARNED_TITLE = "the seeds that learned segment 0"
+FIRST = "first"           # segment_gains' reference: the run's own segment 0
 COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "learned_first",
            "later_segments"]
 MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
@@ -121,8 +124,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         first, first_half, _ = stats.mean_t_ci(g["first_auc"])
         end, end_half, _ = stats.mean_t_ci(g["relearning_end"])
         learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
-        took = g["learned_first"] == 1.0
-        kept, kept_half, _ = stats.mean_t_ci(g.loc[took, "relearning"])
+        learned_first = g["learned_first"] == 1.0
+        relearning_learned, relearning_learned_half, _ = stats.mean_t_ci(g.loc[learned_first, "relearning"])
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
@@ -132,8 +135,8 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                   for i, suffix in enumerate(("", "_low", "_high"))},
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
                "learned_share": learned, "learned_share_ci95": learned_half,
-               "learned_first_seeds": int(took.sum()), "relearning_if_learned": kept,
-               "relearning_if_learned_ci95": kept_half,
+               "learned_first_seeds": int(learned_first.sum()), "relearning_if_learned": relearning_learned,
+               "relearning_if_learned_ci95": relearning_learned_half,
                "hover_after_median": float(g["hover_after"].median()),
                **{c.final: g[c.final].mean() for c in finals}}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
@@ -144,8 +147,9 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  **{column: cell for a in extra for column, cell in (
                      (f"Δ vs {conds.labels.get(a, a)} (pp) [95% CI]", interval(*(100 * x for x in delta[a]), 0)),
                      (f"P(> {conds.labels.get(a, a)}) [95% CI]", interval(*poi[a], 2)))},
-                 "Learned segment 0 (seeds)": f"{int(took.sum())}/{int(g['learned_first'].notna().sum())}",
-                 "Re-learning AUC, seeds that learned (%)": plus_minus(100 * kept, 100 * kept_half, 0),
+                 "Learned segment 0 (seeds)": f"{int(learned_first.sum())}/{int(g['learned_first'].notna().sum())}",
+                 "Re-learning AUC, seeds that learned (%)": plus_minus(100 * relearning_learned,
+                                                                       100 * relearning_learned_half, 0),
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
                  "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
@@ -180,40 +184,59 @@ def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataF
     return pd.DataFrame(rows, columns=["wind", "reading", "across", "rho", "rho_low", "rho_high", "n"])
 
 
-def learned_segments(evals: pd.DataFrame, runs: pd.DataFrame, relearn: pd.DataFrame,
-                     reference: str = REFERENCE) -> pd.DataFrame:
-    """The per-segment evaluations (stats.segment_evaluations) of the runs that learned segment 0 (``relearn``'s
-    ``learned_first``), every agent's alike in segment 0, and in the later segments every run of ``reference``:
-    those are freshly drawn networks, which its own segment 0 does not select."""
-    learned = evals["run_id"].isin(set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]))
-    fresh = evals["run_id"].isin(set(runs.loc[runs["agent"] == reference, "run_id"])) & (evals["segment"] >= 1)
-    return evals[learned | fresh]
-
-
-LEARNED_TITLE = f"the seeds that learned segment 0 ({REFERENCE} after it: every seed)"
+def segment_gains(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame, conds) -> pd.DataFrame:
+    """Per condition x wind x segment over the runs of ``relearn`` that learned segment 0 (``learned_first``; every
+    agent alike, reset_all too): tables.segment_scores' AUC and end success, and the paired gain over the run's own
+    segment 0, ``auc_vs_first`` (per seed AUC_k - AUC_0, mean with its 95% Student-t CI). Segment 0 is the same
+    network learning from scratch, so the gain compares like with like; another agent's seeds would be selected
+    otherwise (most fresh networks never learn). Gain >= 0: re-learns each change at least as well as it first
+    learned; falling with k: loss of plasticity. reset_all's later segments are fresh draws: its gain is what a
+    new network gives against a first one that learned."""
+    kept = evals[evals["run_id"].isin(set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]))]
+    numbers, _ = segment_scores(runs, kept, conds)
+    first = kept.loc[kept["segment"] == 0, ["run_id", "auc"]].rename(columns={"auc": "auc_first"})
+    per_seed = kept.merge(first, on="run_id").merge(runs[["run_id", "wind", "condition"]], on="run_id")
+    rows = []
+    for (wind, cond, k), g in per_seed.groupby(["wind", "condition", "segment"]):
+        mean, half, _ = stats.mean_t_ci(g["auc"] - g["auc_first"])
+        rows.append({"wind": wind, "condition": cond, "segment": k, f"auc_vs_{FIRST}": mean,
+                     f"auc_vs_{FIRST}_low": mean - half, f"auc_vs_{FIRST}_high": mean + half})
+    gains = pd.DataFrame(rows, columns=["wind", "condition", "segment", *(f"auc_vs_{FIRST}{s}" for s in
+                                                                         ("", "_low", "_high"))])
+    return (numbers.drop(columns=[c for c in numbers if "_vs_" in c])
+            .merge(gains, on=["wind", "condition", "segment"], how="left"))
 
 
 def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame, conds, shown, out) -> list:
-    """segment_scores_learned.csv/.md and its figure: tables.segment_scores over learned_segments, i.e. per segment
-    what a network that once learned the hover does after each change, against fresh networks. A decline of
-    the agent's Δ with the segment index there is loss of plasticity proper, not seeds that never learned."""
+    """segment_scores_learned.csv/.md and its figure (segment_gains): per segment, what a network that once learned
+    the hover does after each change, against its own first learning. Nothing without a run that learned."""
     if not len(relearn) or not (relearn["learned_first"] == 1.0).any():
         return []
-    numbers, display = segment_scores(runs, learned_segments(evals, runs, relearn), conds)
+    numbers = segment_gains(runs, evals, relearn, conds)
     numbers.to_csv(out / "segment_scores_learned.csv", index=False)
+    rows = []
+    for (wind, cond), g in numbers.groupby(["wind", "condition"], sort=False):
+        row = {"Agent": cond, "Wind": wind, "Seeds": int(g["n_seeds"].max())}
+        for r in g.sort_values("segment").itertuples():
+            cell = plus_minus(100 * r.auc_mean, 100 * r.auc_ci95, 0)
+            if r.segment > 0:
+                cell += " (gain " + interval(100 * r.auc_vs_first, 100 * r.auc_vs_first_low,
+                                             100 * r.auc_vs_first_high, 0) + ")"
+            row[f"{r.segment}"] = cell
+        rows.append(row)
     (out / "segment_scores_learned.md").write_text(
-        provenance(runs) + f"segment_scores.md over {LEARNED_TITLE}: a seed that never hovered in segment 0 has no "
-        "skill to lose, and outcomes on the hover task are bimodal per seed, so the table over every seed mixes "
-        "'never learned' with 'stopped re-learning'. Seeds = the runs kept; Δ = against reset_all over all its "
-        "seeds in the later segments (fresh networks, which its segment 0 does not select), 95% percentile "
-        "bootstrap; in segment 0 every agent is read over its seeds that learned it. Forward transfer makes the "
-        "later Δ positive; a Δ that falls below 0 and keeps falling with the segment index is loss of "
-        "plasticity.\n\n"
-        "## Learning speed: eval-success AUC within the segment (%)\n\n" + markdown(display["auc"].fillna("–"))
-        + "\n\n## Success at the segment's end (%)\n\n" + markdown(display["end"].fillna("–")))
+        provenance(runs) + f"Per segment over {LEARNED_TITLE} (an evaluation at >= 50% success in it; every agent "
+        "alike): the eval-success AUC within the segment, % mean ± 95% Student-t CI over those seeds, and its gain "
+        "over the run's own segment 0 (per seed AUC_k - AUC_0, mean [95% Student-t CI], points). A seed that never "
+        "hovered has no skill to lose, and outcomes on the hover task are bimodal per seed, so segment_scores.md "
+        "over every seed mixes 'never learned' with 'stopped re-learning'. The gain compares each network with its "
+        "own first learning; against reset_all's seeds it would not be like with like (most fresh networks never "
+        "learn, and these seeds are selected for having learned). A gain that falls with the segment index is "
+        "loss of plasticity; reset_all's row (fresh networks after segment 0) shows what a new draw gives.\n\n"
+        + markdown(pd.DataFrame(rows).fillna("–")))
     return ([out / "segment_scores_learned.csv", out / "segment_scores_learned.md"]
-            + figures.segment_scores(numbers, conds, shown, out, name="segment_scores_learned",
-                                     runs_shown=LEARNED_TITLE))
+            + figures.segment_scores(numbers, conds, shown, out, reference=FIRST, name="segment_scores_learned",
+                                     runs_shown=LEARNED_TITLE, diff_label="AUC gain over its\nown segment 0 (points)"))
 
 
 READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings"}
