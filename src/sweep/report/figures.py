@@ -277,6 +277,8 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
         axes[0, col].set_title(style.arm_title(wind), fontsize="small")
         if has_diff:
             axes[1, col].axhline(0.0, color="0.4", lw=0.8, ls=":")
+            low, high = axes[1, col].get_ylim()   # a difference of two shares lies in [-100, 100] points
+            axes[1, col].set_ylim(max(low, -103), min(high, 103))
         axes[-1, col].set_xlabel("Segment (each wind.segment_steps)")
         axes[-1, col].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
