@@ -12,7 +12,7 @@
 #   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
 #   docs/plasticity_study/run.sh main            # the six phases, the flip change's three first (what a session resumes)
 #   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
-#   docs/plasticity_study/run.sh report          # the main phases' tables and figures -> docs/plasticity_study/main
+#   docs/plasticity_study/run.sh report          # the main phases' tables, figures and decline.md -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
 #
@@ -74,7 +74,9 @@ case ${1:-} in
                  kill $workers 2>/dev/null || true
                  echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
   report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
-                    --out "$ROOT/docs/plasticity_study/main") ;;
+                    --out "$ROOT/docs/plasticity_study/main")
+                 "$PY" "$ROOT/docs/plasticity_study/decline.py" "$ROOT/docs/plasticity_study/main" \
+                   > "$ROOT/docs/plasticity_study/main/decline.md" ;;   # the early-vs-late test
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                     --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
