@@ -29,7 +29,7 @@ LABEL_WIDTH = 26       # characters per line of an agent's label
 class Measure:
     """A per-run column aggregated over seeds: by its mean with a 95% Student-t CI (``mean``) or by rliable's IQM
     with a 95% stratified-bootstrap CI (``iqm``), drawn times ``scale``. A ``percent`` measure lies in [0, 100],
-    and its CI is cut there (a t-interval over few bimodal seeds reaches past both ends)."""
+    and its CI is cut there (a t-interval over few bimodal seeds can reach past both ends)."""
     column: str
     title: str
     statistic: str
@@ -129,6 +129,6 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
         axes[0, 0].set_xlim(-3, 103)
     reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""
     cut = " (cut to 0–100)" if measure.percent else ""
-    fig.supxlabel(textwrap.fill(f"{measure.title}; {STATISTIC[measure.statistic]}{cut}{reference}", 60 * len(panels)),
-                  fontsize=7)
+    caption = f"{measure.title}; {STATISTIC[measure.statistic]}{cut}{reference}"
+    fig.supxlabel(textwrap.fill(caption, 60 * len(panels)), fontsize=7)
     return figures.save(fig, out, f"interval_{name}")
