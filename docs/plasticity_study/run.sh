@@ -13,6 +13,7 @@
 #   docs/plasticity_study/run.sh main            # the six phases, the flip change's three first (what a session resumes)
 #   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
 #   docs/plasticity_study/run.sh report          # the main phases' tables, figures and decline.md -> docs/plasticity_study/main
+#   docs/plasticity_study/run.sh report flip     # the same for one change's phases only -> docs/plasticity_study/flip
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
 #
@@ -73,15 +74,16 @@ case ${1:-} in
                  kill $sweeps 2>/dev/null || true; sleep 2
                  kill $workers 2>/dev/null || true
                  echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
-  report)        (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity --highlight reset_all --vs "$CONTROLS" \
-                    --out "$ROOT/docs/plasticity_study/main")
-                 "$PY" "$ROOT/docs/plasticity_study/decline.py" "$ROOT/docs/plasticity_study/main" \
-                   > "$ROOT/docs/plasticity_study/main/decline.md" ;;   # the early-vs-late test
+  report)        change=${2:-}   # report flip|payload: that change's phases only (their sweep dirs end in -flip, -payload)
+                 out=$ROOT/docs/plasticity_study/${change:-main}
+                 (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity ${change:+"--sweep=-$change"} \
+                    --highlight reset_all --vs "$CONTROLS" --out "$out")
+                 "$PY" "$ROOT/docs/plasticity_study/decline.py" "$out" > "$out/decline.md" ;;   # the early-vs-late test
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                     --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
   import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,16p "$0"; exit 2 ;;
+  *) sed -n 2,18p "$0"; exit 2 ;;
 esac
