@@ -1287,6 +1287,10 @@ def test_intervals_are_the_seed_mean_with_its_t_interval_and_the_iqm_with_its_bo
     for percent, bounds in ((True, (0.0, 100.0)), (False, (100 * (0.5 - half), 100 * (0.5 + half)))):
         got = intervals.estimates(runs, intervals.Measure("share", "Share", "mean", 100.0, percent), conds)
         assert tuple(got[["low", "high"]].iloc[0]) == pytest.approx(bounds) and got["point"].iloc[0] == 50.0
+        assert got["cut"].iloc[0] == percent  # the caption says "cut to 0-100" only then
+    inside = intervals.estimates(runs.assign(share=[0.4, 0.5, 0.6]),
+                                 intervals.Measure("share", "Share", "mean", 100.0, True), conds)
+    assert not inside["cut"].iloc[0]  # 50 ± 25: nothing to cut
     rewards = [-300.0, -250.0, -100.0, -90.0, -80.0, -20.0, 0.0, 10.0]
     point, lo, hi, n = intervals.estimate(rewards, "iqm")
     assert point == pytest.approx(trim_mean(rewards, 0.25)) and (lo, hi) == stats.iqm_ci(rewards)[1:] and n == 8

@@ -69,8 +69,8 @@ def estimate(values, statistic: str) -> tuple[float, float, float, int]:
 
 def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
     """One row per panel (arm: 'wind W' and the --by values) and condition with runs that have the measure:
-    panel, condition, agent, label, point, low, high, n; each panel's rows sorted by the point, highest last; a
-    percent measure's CI cut to [0, 100]."""
+    panel, condition, agent, label, point, low, high, n, cut; each panel's rows sorted by the point, highest last;
+    a percent measure's CI cut to [0, 100] (cut: whether it reached past either end)."""
     rows = []
     for wind in sorted(df["wind"].unique(), key=lambda w: (w != "paper", w)):
         dw = df[df["wind"] == wind]
@@ -80,14 +80,15 @@ def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
             for cond in shown:
                 point, lo, hi, n = estimate(dw.loc[dw["condition"] == cond, measure.column], measure.statistic)
                 lo, hi = measure.scale * lo, measure.scale * hi
+                cut = measure.percent and (lo < 0.0 or hi > 100.0)
                 if measure.percent:
                     lo, hi = max(lo, 0.0), min(hi, 100.0)
                 if n:
                     panel.append({"panel": arm, "condition": cond, "agent": conds.agent(cond),
                                   "label": conds.series(cond), "point": measure.scale * point,
-                                  "low": lo, "high": hi, "n": n})
+                                  "low": lo, "high": hi, "n": n, "cut": cut})
             rows += sorted(panel, key=lambda r: r["point"])  # stable: ties keep the display order
-    return pd.DataFrame(rows, columns=["panel", "condition", "agent", "label", "point", "low", "high", "n"])
+    return pd.DataFrame(rows, columns=["panel", "condition", "agent", "label", "point", "low", "high", "n", "cut"])
 
 
 def _row(ax, y: float, point: float, low: float, high: float, colour) -> None:
@@ -128,7 +129,7 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
     if measure.percent:
         axes[0, 0].set_xlim(-3, 103)
     reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""
-    cut = " (cut to 0–100)" if measure.percent else ""
+    cut = " (cut to 0–100)" if table["cut"].any() else ""  # said only where a CI reached past 0 or 100
     caption = f"{measure.title}; {STATISTIC[measure.statistic]}{cut}{reference}"
     fig.supxlabel(textwrap.fill(caption, 60 * len(panels)), fontsize=7)
     return figures.save(fig, out, f"interval_{name}")
