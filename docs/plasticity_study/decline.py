@@ -34,7 +34,9 @@ def declines(per_segment: pd.DataFrame) -> pd.DataFrame:
     LATE): early, late and decline (fractions), and whether it learned segment 0."""
     current = per_segment[per_segment["eval_condition"] == "current"]
     rows = []
-    for (wind, agent, condition, run_id), run in current.groupby(["wind", "agent", "condition", "run_id"]):
+    # by seed, not run id alone: a store re-made from the archive gives its runs new ids, and the bootstrap's
+    # resampling follows the row order
+    for (wind, agent, condition, _, run_id), run in current.groupby(["wind", "agent", "condition", "seed", "run_id"]):
         auc = run.set_index("segment")["auc"]
         if not set(EARLY + LATE) <= set(auc.index):
             continue

@@ -33,6 +33,9 @@ STUDY=${STUDY:-/work/studies/plasticity}
 PILOT_COMMIT=9ff7f41
 MAIN_COMMIT=01b8be3
 CONTROLS=l2_lr_decay,l2_lr_decay_8m,recom_l2_relative   # the remedies study's winners: relearning.md's --vs columns
+# the main report also puts every agent against layer_norm, added 12-05 after the flip change was read (it led there):
+# does any agent, the combination included, re-learn as well?
+VERSUS=$CONTROLS,layer_norm
 # COMBO_COMMIT: MAIN_COMMIT's JAX training code plus conf/agent/layer_norm_l2_lr_decay_8m.yaml, the combination of the
 # pilot's top two (LayerNorm, L2 + LR decay by 8M), added after the pilot and run after the other phases
 COMBO_COMMIT=be84f2b
@@ -77,7 +80,7 @@ case ${1:-} in
   report)        change=${2:-}   # report flip|payload: that change's phases only (their sweep dirs end in -flip, -payload)
                  out=$ROOT/docs/plasticity_study/${change:-main}
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity ${change:+"--sweep=-$change"} \
-                    --highlight reset_all --vs "$CONTROLS" --out "$out")
+                    --highlight reset_all --vs "$VERSUS" --out "$out")
                  "$PY" "$ROOT/docs/plasticity_study/decline.py" "$out" > "$out/decline.md" ;;   # the early-vs-late test
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                     --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
