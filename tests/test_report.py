@@ -329,7 +329,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
         history = client.get_metric_history(r.info.run_id, "eval/success_rate")
         steps = {m.step for m in history}
         if len({-(-min(s, total) // length) for s in steps if s > 0}) > 1:
-            stems.add("segment_scores")
+            stems |= {"segment_scores", "segment_scores_end"}
             if r.data.params.get("eval.condition") == "current":   # and re-learning in the segments after the first
                 stems.add("interval_relearning")
                 if any(0 < m.step <= length and m.value >= 0.5 for m in history):   # a run that learned segment 0
@@ -342,7 +342,7 @@ def expected_curves(store: str, experiment: str) -> set[str]:
 
 
 PANELLED = ("eval_flights_3d", "eval_position_axes",  # a panel per condition: one column wide whatever --by says
-            "segment_scores", "segment_scores_learned")  # agents side by side in one column per wind
+            "segment_scores", "segment_scores_end", "segment_scores_learned")  # agents side by side, a column per wind
 
 
 # -- tests ---------------------------------------------------------------------------------------------------
@@ -788,7 +788,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_best",
-                                    "segment_scores"})   # its evaluations span several wind segments
+                                    "segment_scores", "segment_scores_end"})   # evaluated in several segments
     for name in TABLES + ["brief.txt"]:
         assert (out / name).stat().st_size > 0, name
     assert "missing: eval" not in stdout and "the flight figures show the best policy" in stdout
@@ -975,7 +975,7 @@ def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monk
     assert figure_stems(out) == ({f"{stem}_paper" for stem in figures.CURVES if stem != "probe"}  # no probes logged
                                  | {"eval_flights_3d", "eval_position_axes", "performance_profile_paper",
                                     "interval_keeps_hovering", "interval_final_reward", "interval_success_final",
-                                    "segment_scores"})   # its evaluations span several wind segments
+                                    "segment_scores", "segment_scores_end"})   # evaluated in several segments
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     panels = drawn["dormant_paper"]["panels"]
@@ -1462,7 +1462,7 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, mon
     shown = md_table(tmp_path / "out" / "segment_scores.md")
     assert sorted(shown["Wind"]) == ["flip", "flip", "none+payload", "none+payload"]   # PPO and reset_all per arm
     assert sorted(p.name for p in (tmp_path / "out").glob("segment_scores*.png")) == [
-        "segment_scores.png", "segment_scores_learned.png"]
+        "segment_scores.png", "segment_scores_end.png", "segment_scores_learned.png"]
     height, width = image.imread(tmp_path / "out" / "segment_scores.png").shape[:2]
     assert 1700 <= width <= 2200 and height > 900, (width, height)   # both columns of the page, two rows
     # re-made from the same runs, every file has the same bytes (PDFs carry no creation date): a committed report

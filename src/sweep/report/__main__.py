@@ -14,10 +14,11 @@ and of the best one kept during training, side by side, and the top seed's numbe
 outcome per condition), segments.{md,csv} (training reward in each hold of the wind schedule), leaderboard.{md,csv}
 (runs evaluated during training; sorted by "keeps hovering"), versus.{md,csv} (with --vs: each agent against
 reference agents on that measure). Runs evaluated in two segments of the schedule or more (the plasticity study)
-add segment_scores.{md,csv} and the figure segment_scores (per segment against reset_all, a column per wind), the
-same over the seeds that learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's
-segments), relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to
-it, probe_correlation.csv) and interval_relearning.
+add segment_scores.{md,csv} and the figures segment_scores (the AUC per segment against reset_all, a column per
+wind) and segment_scores_end (the same for the success at each segment's end), the AUC over the seeds that
+learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's segments),
+relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the probe's rank correlation to it,
+probe_correlation.csv) and interval_relearning.
 """
 from __future__ import annotations
 
@@ -99,6 +100,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():
         scores = tables.segment_scores(runs, evals, conds)
         written += figures.segment_scores(scores[0], conds, shown, out_dir)
+        written += figures.segment_scores(scores[0], conds, shown, out_dir, name="segment_scores_end", measure="end")
 
     wind, picked, policy = figures.eval_runs(runs)
     coloured = [shown.is_coloured(wind, conds.agent(c)) for c in picked.index]

@@ -228,11 +228,17 @@ def performance_profile(runs: pd.DataFrame, late: pd.DataFrame, wind: str, conds
     return save(fig, out, f"performance_profile_{wind}")
 
 
+SEGMENT_MEASURES = {"auc": ("Eval success AUC\nin segment (%)", "Δ AUC"),   # tables.segment_scores' column prefixes
+                    "end": ("Eval success at\nsegment end (%)", "Δ end success")}
+
+
 def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: str = "reset_all",
-                   name: str = "segment_scores", runs_shown: str = "", diff_label: str = "") -> list[Path]:
+                   name: str = "segment_scores", runs_shown: str = "", diff_label: str = "",
+                   measure: str = "auc") -> list[Path]:
     """Figure segment_scores (tables.segment_scores' numbers), small multiples with one column per arm (training
     wind and vehicle: one change of condition each): per segment of the schedule, each agent's eval-success AUC
-    (top row) and its difference to ``reference`` on that segment (bottom row, where the reference ran), agents side
+    (top row; ``measure="end"``: the success of the segment's last evaluation, as segment_scores_end draws it) and
+    its difference to ``reference`` on that segment (bottom row, where the reference ran), agents side
     by side at each segment with 95% CIs as bars, each agent's points joined by a line across the segments, axes
     shared so the changes compare at a glance. With more than highlight.MAX_COLOURED agents in an arm only those
     ``shown`` colours there (its top by the primary measure, PPO, the reference, --highlight) are in colour and in
@@ -242,7 +248,8 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
     if numbers.empty:
         return []
     winds = sorted(numbers["wind"].unique(), key=lambda w: (w != "paper", w))
-    diff = f"auc_vs_{reference}"
+    diff = f"{measure}_vs_{reference}"
+    y_label, diff_name = SEGMENT_MEASURES[measure]
     has_diff = numbers[diff].notna().any()
     fig, axes = plt.subplots(2 if has_diff else 1, len(winds), sharex=True, sharey="row", squeeze=False,
                              layout="constrained",
@@ -259,8 +266,8 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
             colour = conds.color(cond) if coloured else "0.75"
             look = (dict(color=colour, marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5, zorder=3) if coloured
                     else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
-            series = [(axes[0, col], 100 * rows["auc_mean"].to_numpy(),
-                       100 * rows["auc_ci95"].fillna(0).to_numpy())]
+            series = [(axes[0, col], 100 * rows[f"{measure}_mean"].to_numpy(),
+                       100 * rows[f"{measure}_ci95"].fillna(0).to_numpy())]
             if has_diff and rows[diff].notna().any():
                 d, lo, hi = (100 * rows[c].to_numpy() for c in (diff, f"{diff}_low", f"{diff}_high"))
                 series.append((axes[1, col], d, [np.nan_to_num(d - lo), np.nan_to_num(hi - d)]))
@@ -281,10 +288,10 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
             axes[1, col].set_ylim(max(low, -103), min(high, 103))
         axes[-1, col].set_xlabel("Segment (each wind.segment_steps)")
         axes[-1, col].xaxis.set_major_locator(MaxNLocator(integer=True))
-    axes[0, 0].set_ylabel("Eval success AUC\nin segment (%)")
+    axes[0, 0].set_ylabel(y_label)
     axes[0, 0].set_ylim(-3, 103)
     if has_diff:
-        axes[1, 0].set_ylabel(diff_label or f"Δ AUC vs {reference}\n(points)")
+        axes[1, 0].set_ylabel(diff_label or f"{diff_name} vs {reference}\n(points)")
     fig.suptitle(textwrap.fill("Learning per segment: mean over " + (runs_shown or "seeds") + ", bars 95% CI",
                                70 * len(winds)), fontsize="small")
     grey = [label for cond, label in grey.items() if cond not in handles]   # grey in every arm
