@@ -1375,10 +1375,12 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 }
 
 
-def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal") -> None:
+def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal",
+                     dormant: dict | None = None) -> None:
     """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
     seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of
-    segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400, 800 and 1200."""
+    segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400, 800 and 1200;
+    with ``dormant`` (agent -> four values) the dormant share (+0.001 x seed) at 300, 500, 700 and 900."""
     known = client.get_experiment_by_name(experiment)
     exp_id = known.experiment_id if known else client.create_experiment(experiment)
     for agent, segs, probe, condition in runs:
@@ -1390,6 +1392,8 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
             metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
             metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
+            metrics += [Metric("plasticity/dormant_ratio", v + 0.001 * seed, 0, step) for step, v in
+                        zip((300, 500, 700, 900), (dormant or {}).get(agent, []))]
             client.log_batch(run_id, metrics=metrics, params=[
                 Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
                 Param("eval.condition", condition), Param("agent.l2.enabled", str(agent in ("l2", "cbp_l2")))])
@@ -1483,7 +1487,7 @@ RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 
 }
 
 
-def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_path):
+def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_path):
     """Re-learning = the mean eval-success AUC over the segments after the first. reset_all: 62.5% in every segment;
     PPO: 100% then 12.5% -> 56.25% (Δ −6.25 pp, P(> reset_all) 0), its later segments end at 100% and 50%; ReDo
     75%; L2: 100% (Δ +37.5 pp, P 1), its first segment 37.5%. Seeds alike except the probe (+0.001 x seed).
@@ -1491,13 +1495,19 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     reading (L2 < ReDo < PPO: ranks 1..6 against re-learning's 5.5, 5.5, 3.5, 3.5, 1.5, 1.5, ρ = −16 / sqrt(17.5 x
     16)) and by the mean of its readings (ReDo < PPO < L2, whose probe rises: against 3.5, 3.5, 1.5, 1.5, 5.5, 5.5,
     ρ = +8 / sqrt(17.5 x 16)); both equal scipy's spearmanr. Across the 3 agents' means ρ = −1 with no CI (< 6
-    pairs). A run evaluated under a fixed condition is left out of re-learning."""
+    pairs). A run evaluated under a fixed condition is left out of re-learning. The dormant share at the changes
+    (400, 800) is the value logged last before each (at 300 and 700, not 500 and 900): L2 0.1, ReDo 0.2, PPO
+    (0.2 + 0.6) / 2 = 0.4, a perfect inverse ranking of re-learning; 500's and 900's values would rank it the other
+    way. No dead-tanh share was logged: no row for it."""
     from scipy.stats import spearmanr
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    dormant = {"l2": [0.1, 0.9, 0.1, 0.9], "redo": [0.2, 0.0, 0.2, 0.0], "ppo": [0.2, 0.0, 0.6, 0.0],
+               "reset_all": [0.0] * 4}
     log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
-                     + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")])   # CBP: flown under one fixed wind
+                     + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")],   # CBP: flown under one fixed wind
+                     dormant=dormant)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn", "--vs", "redo,ppo")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
@@ -1525,7 +1535,8 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
     assert shown.loc["L2 + PPO", "Δ vs PPO (pp) [95% CI]"] == "44 [44, 44]"
     versus_redo = [c for c in shown.columns if c.startswith("Δ vs") and not c.startswith(("Δ vs reset_all", "Δ vs PPO"))]
     assert len(versus_redo) == 1 and shown.loc["PPO", versus_redo[0]] == "-19 [-19, -19]"
-    corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
+    corr = pd.read_csv(tmp_path / "out" / "reading_correlation.csv").set_index(["reading", "across"])
+    assert set(corr.index.get_level_values("reading")) == {"probe_first", "probe_mean", "dormant_at_changes"}
     relearn = [1.0, 1.0, 0.75, 0.75, 0.5625, 0.5625]                                   # L2, ReDo, PPO; seeds 0, 1
     for reading, probe, rho in (("probe_first", [0.010, 0.011, 0.030, 0.031, 0.050, 0.051], -16),
                                 ("probe_mean", [0.410 / 3, 0.413 / 3, 0.030, 0.031, 0.060, 0.061], 8)):
@@ -1534,6 +1545,11 @@ def test_relearning_table_and_probe_correlation_on_hand_built_evaluations(tmp_pa
         assert row["n"] == 6 and row["rho_low"] <= row["rho"] <= row["rho_high"]
     agents = corr.loc[("probe_first", "agents (seed means)")]
     assert agents["rho"] == pytest.approx(-1) and agents["n"] == 3 and np.isnan(agents["rho_low"])
+    at_changes = corr.loc[("dormant_at_changes", "runs (agents x seeds)")]
+    expected = spearmanr([0.1, 0.101, 0.2, 0.201, 0.4, 0.401], relearn)[0]
+    assert at_changes["rho"] == pytest.approx(expected) and expected < -0.9 and at_changes["n"] == 6
+    text = (tmp_path / "out" / "relearning.md").read_text()
+    assert "Sokar dormant share at the changes" in text and "dead tanh share" not in text
     assert (tmp_path / "out" / "interval_relearning.png").exists()
 
 
@@ -1569,7 +1585,7 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     assert learned_first["PPO"] == "1/2" and learned_first["L2 + PPO"] == "2/2"
     assert shown.loc["PPO", "Re-learning AUC, seeds that learned (%)"] == "56"
     assert shown.loc["L2 + PPO", "Re-learning AUC, seeds that learned (%)"] == "100 ± 0"
-    corr = pd.read_csv(tmp_path / "out" / "probe_correlation.csv").set_index(["reading", "across"])
+    corr = pd.read_csv(tmp_path / "out" / "reading_correlation.csv").set_index(["reading", "across"])
     within = corr.loc[("probe_first", "runs that learned segment 0")]
     probe, relearn = [0.010, 0.011, 0.030, 0.031, 0.050], [1.0, 1.0, 0.75, 0.75, 0.5625]
     assert within["rho"] == pytest.approx(spearmanr(probe, relearn)[0]) and within["n"] == 5

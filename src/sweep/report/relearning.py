@@ -21,9 +21,10 @@ per-segment eval-success AUCs:
 
 ``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
 improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
-plasticity problem and no prior knowledge would do). ``probe_correlation`` asks whether the probe (Lyle et al.'s
-fit to random targets, which needs no change of task) ranks runs as their re-learning does: Spearman's rank
-correlation between a run's probe loss and its ``relearning``, across runs (agents x seeds), across the runs that
+plasticity problem and no prior knowledge would do). ``reading_correlation`` asks whether a plasticity reading
+ranks runs as their re-learning does: the probe (Lyle et al.'s fit to random targets, which needs no change of
+task) and the network's dormant, dead-tanh and saturated shares and weight norm at the changes. Spearman's rank
+correlation between a run's reading and its ``relearning``, across runs (agents x seeds), across the runs that
 learned segment 0 and across agents (seed means), with 95% bootstrap CIs. reset_all is left out of it: its remedy
 hook runs before the probe at every change, so its probe reads a freshly drawn network by construction.
 """
@@ -39,11 +40,19 @@ from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, 
                                  provenance, segment_scores)
 
 REFERENCE = "reset_all"   # the fresh network at every change
-LEARNED_RUNS = "runs that learned segment 0"   # probe_correlation's within-runs reading
+LEARNED_RUNS = "runs that learned segment 0"   # reading_correlation's within-runs reading
 LEARNED_TITLE = "the seeds that learned segment 0"
 FIRST = "first"           # segment_gains' reference: the run's own segment 0
 COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "learned_first",
            "later_segments"]
+# network readings read at the changes (plasticity_readings): column -> metric; higher should mean less plastic
+AT_CHANGES = {"dormant_at_changes": "plasticity/dormant_ratio", "dead_tanh_at_changes": "plasticity/dead_tanh_ratio",
+              "saturated_at_changes": "plasticity/saturated_ratio", "weight_norm_at_changes": "plasticity/weight_norm"}
+READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings",
+            "dormant_at_changes": "Sokar dormant share at the changes",
+            "dead_tanh_at_changes": "dead tanh share at the changes",
+            "saturated_at_changes": "saturated share at the changes",
+            "weight_norm_at_changes": "weight norm at the changes"}
 MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
 
 
@@ -69,13 +78,27 @@ def per_run(evals: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-def probe_readings(histories: pd.DataFrame) -> pd.DataFrame:
-    """Per run: ``probe_first``, the probe loss at its earliest reading (the first change: after the first
-    condition was learned, before any re-learning), and ``probe_mean``, the mean of all its readings (at every
-    change and at the end of training)."""
+def plasticity_readings(histories: pd.DataFrame, evals: pd.DataFrame) -> pd.DataFrame:
+    """Per run, the READINGS that could predict re-learning: ``probe_first``, the probe loss at its earliest reading
+    (the first change: after the first condition was learned, before any re-learning), ``probe_mean``, the mean of
+    all its readings (at every change and at the end of training), and for each logged network reading of
+    AT_CHANGES its value at the changes: the last value logged at or before each change (the start of every
+    segment after the first in ``evals``, stats.segment_evaluations), averaged over the run's changes. A column
+    is there when its metric was logged."""
+    out = pd.DataFrame({"run_id": pd.unique(evals["run_id"]) if len(evals) else []})
     probe = histories[histories["key"] == PROBE].sort_values(["run_id", "step"])
-    return (probe.groupby("run_id")["value"].agg(probe_first="first", probe_mean="mean").reset_index()
-            if len(probe) else pd.DataFrame(columns=["run_id", "probe_first", "probe_mean"]))
+    if len(probe):
+        out = out.merge(probe.groupby("run_id")["value"].agg(probe_first="first", probe_mean="mean").reset_index(),
+                        on="run_id", how="outer")
+    changes = evals.loc[evals["segment"] >= 1, ["run_id", "start"]].astype({"start": float}).sort_values("start")
+    for column, key in AT_CHANGES.items():
+        logged = histories.loc[histories["key"] == key, ["run_id", "step", "value"]]
+        if not len(logged) or not len(changes):
+            continue
+        at = pd.merge_asof(changes, logged.astype({"step": float}).sort_values("step"), left_on="start",
+                           right_on="step", by="run_id", direction="backward")
+        out = out.merge(at.groupby("run_id")["value"].mean().rename(column).reset_index(), on="run_id", how="left")
+    return out
 
 
 def spearman_ci(x, y) -> tuple[float, float, float, int]:
@@ -164,18 +187,21 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
     return numbers.reset_index(drop=True), display.reset_index(drop=True)
 
 
-def probe_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, probe: pd.DataFrame) -> pd.DataFrame:
-    """Spearman's rho [95% CI] between a probe reading (probe_readings) and ``relearning``, per wind: across runs
-    (agents x seeds), across the runs that learned the first segment (``learned_first``: does the probe still
-    predict re-learning once "never learned at all" is out?) and across conditions (their seed means); reset_all
-    left out (its probe reads a fresh network by construction). A plastic network fits the probe well (low loss),
-    so a probe that predicts re-learning gives a negative rho."""
+def reading_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, readings: pd.DataFrame) -> pd.DataFrame:
+    """Spearman's rho [95% CI] between each plasticity reading (plasticity_readings) and ``relearning``, per wind:
+    across runs (agents x seeds), across the runs that learned the first segment (``learned_first``: does the
+    reading still predict re-learning once "never learned at all" is out?) and across conditions (their seed
+    means); reset_all left out (its remedy hook runs before the probe at every change, so its probe reads a freshly
+    drawn network by construction, and its later networks are not the ones read). Every reading is one where
+    higher should mean less plastic (a worse fit to the probe's random targets, more dormant, dead or saturated
+    units, larger weights), so a reading that predicts re-learning gives a negative rho."""
     df = runs.loc[runs["agent"] != REFERENCE, ["run_id", "wind", "condition"]]
-    df = df.merge(relearn, on="run_id").merge(probe, on="run_id")
+    df = df.merge(relearn, on="run_id").merge(readings, on="run_id")
+    present = [r for r in READINGS if r in df and df[r].notna().any()]
     rows = []
     for wind, dw in df.groupby("wind"):
-        means = dw.groupby("condition")[["relearning", "probe_first", "probe_mean"]].mean()
-        for reading in ("probe_first", "probe_mean"):
+        means = dw.groupby("condition")[["relearning", *present]].mean()
+        for reading in present:
             for across, d in (("runs (agents x seeds)", dw), (LEARNED_RUNS, dw[dw["learned_first"] == 1.0]),
                               ("agents (seed means)", means)):
                 rho, low, high, n = spearman_ci(d[reading], d["relearning"])
@@ -239,13 +265,10 @@ def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
                                      runs_shown=LEARNED_TITLE, diff_label="AUC gain over its\nown segment 0 (points)"))
 
 
-READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings"}
-
-
-def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, relearn: pd.DataFrame, conds,
-          out, vs: list[str] = ()) -> list:
-    """relearning.csv/.md (the table, with columns against the --vs agents, and the probe's correlation with it)
-    and probe_correlation.csv; nothing without runs that per_run scores."""
+def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, evals: pd.DataFrame,
+          relearn: pd.DataFrame, conds, out, vs: list[str] = ()) -> list:
+    """relearning.csv/.md (the table, with columns against the --vs agents, and each plasticity reading's
+    correlation with it) and reading_correlation.csv; nothing without runs that per_run scores."""
     if not len(relearn):
         return []
     numbers, display = table(runs, per_run, relearn, conds, vs=vs)
@@ -266,20 +289,24 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, re
             "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     written = [out / "relearning.csv", out / "relearning.md"]
-    probe = probe_readings(histories)
-    if len(probe):
-        corr = probe_correlation(runs, relearn, probe)
-        corr.to_csv(out / "probe_correlation.csv", index=False)
-        shown = pd.DataFrame({"Wind": corr["wind"], "Probe reading": corr["reading"].map(READINGS),
-                              "Across": corr["across"], "n": corr["n"],
-                              "Spearman ρ [95% CI]": [interval(r.rho, r.rho_low, r.rho_high, 2)
-                                                      for r in corr.itertuples()]})
-        text += ("\n\nDoes the probe predict re-learning? Spearman's rank correlation between a run's probe loss "
-                 "(plasticity/probe_loss: a copy of the policy fitted to random targets; higher = less plastic) and "
-                 f"its re-learning AUC, across runs, across the {LEARNED_RUNS} and across agents (seed means), "
-                 f"{REFERENCE} left out (its probe at "
-                 "a change reads the freshly drawn network), 95% percentile-bootstrap CI (pairs resampled; none "
-                 f"below {MIN_CI_PAIRS} pairs). A probe that predicts re-learning gives ρ < 0.\n\n" + markdown(shown))
-        written.append(out / "probe_correlation.csv")
+    readings = plasticity_readings(histories, evals)
+    corr = reading_correlation(runs, relearn, readings)
+    if len(corr):
+        corr.to_csv(out / "reading_correlation.csv", index=False)
+        corr["cell"] = [interval(r.rho, r.rho_low, r.rho_high, 2) + f" (n {r.n})" for r in corr.itertuples()]
+        shown = corr.pivot_table(index=["wind", "reading"], columns="across", values="cell", aggfunc="first",
+                                 sort=False).reset_index()
+        shown = pd.DataFrame({"Wind": shown["wind"], "Reading": shown["reading"].map(READINGS),
+                              **{f"ρ across {a}": shown[a] for a in corr["across"].unique()}})
+        text += ("\n\nDoes a plasticity reading predict re-learning? Spearman's rank correlation [95% CI] between a "
+                 "run's reading and its re-learning AUC, across runs, across the "
+                 f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} left out (its probe at a change reads "
+                 "the freshly drawn network). The probe loss (plasticity/probe_loss: a copy of the policy fitted to "
+                 "random targets) at the first change and its mean over the run's readings; the policy network's "
+                 "dormant, dead-tanh and saturated shares and the weight norm at the changes (the last value logged "
+                 "at or before each change, averaged over the run's changes). Higher should mean less plastic for "
+                 "each, so a reading that predicts re-learning gives ρ < 0. 95% percentile-bootstrap CI (pairs "
+                 f"resampled; none below {MIN_CI_PAIRS} pairs).\n\n" + markdown(shown.fillna("–")))
+        written.append(out / "reading_correlation.csv")
     (out / "relearning.md").write_text(text)
     return written
