@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 from matplotlib import image
 from matplotlib.colors import to_hex
+from matplotlib.container import ErrorbarContainer
 from mlflow.entities import Metric, Param
 from mlflow.tracking import MlflowClient
 from scipy.stats import t as t_dist
@@ -272,16 +273,20 @@ def log_reading_runs(client: MlflowClient, experiment: str) -> None:
 
 
 def spy_figures(monkeypatch) -> dict:
-    """Stem -> what figures.save was given: per panel its y label, its curves (label -> y values) and texts; the
-    figure's own texts (the note below the legend) and the legend's labels."""
+    """Stem -> what figures.save was given: per panel its y label, its curves (label -> y values; points with error
+    bars too) and texts; the figure's own texts (the note below the legend) and the legend's labels. A panel
+    without a y label of its own (a shared axis' second column) is left out."""
     drawn, save = {}, figures.save
 
     def spy(fig, out, stem):
         axes = [ax for ax in fig.axes if ax.get_ylabel()]
         drawn[stem] = {
             "panels": [{"ylabel": ax.get_ylabel(), "texts": [t.get_text() for t in ax.texts],
-                        "curves": {line.get_label(): line.get_ydata() for line in ax.get_lines()
-                                   if not line.get_label().startswith("_")}} for ax in axes],
+                        "curves": {**{line.get_label(): line.get_ydata() for line in ax.get_lines()
+                                      if not line.get_label().startswith("_")},
+                                   **{bars.get_label(): bars.lines[0].get_ydata() for bars in ax.containers
+                                      if isinstance(bars, ErrorbarContainer) and not bars.get_label().startswith("_")}}}
+                       for ax in axes],
             "note": " ".join(t.get_text() for t in fig.texts).replace("\n", " "),
             "legend": [t.get_text() for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg
                        for t in leg.get_texts()]}
@@ -1400,14 +1405,22 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
             client.set_terminated(run_id, end_time=1_060_000)
 
 
-def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path):
+def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path, monkeypatch):
     """Segments of 400 steps, four evaluations each. reset_all learns every segment alike: AUC 62.5%, end 100%. PPO
     matches it on segment 0 (Δ 0), transfers forward on segment 1 (AUC 100%, Δ +37.5 points) and fails on segment 2
     (AUC 12.5%, end 50%: Δ −50 points). Both seeds alike, so every interval has zero width."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     log_segment_runs(MlflowClient(uri), "seg", [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()])
+    drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
     assert code == 0, stdout + stderr
+    # the figures draw those numbers in %: segment_scores the AUC, segment_scores_end the success at the end
+    for stem, top, bottom in (("segment_scores", [62.5, 100, 12.5], [0, 37.5, -50]),
+                              ("segment_scores_end", [100, 100, 50], [0, 0, -50])):
+        panels = drawn[stem]["panels"]
+        assert [p["curves"]["PPO"] for p in panels] == [pytest.approx(top), pytest.approx(bottom)], stem
+        assert list(panels[0]["curves"]["reset_all"]) == pytest.approx([62.5] * 3 if stem == "segment_scores"
+                                                                       else [100] * 3)
     got = pd.read_csv(tmp_path / "out" / "segment_scores.csv").set_index(["agent", "segment"])
     assert got.loc[("reset_all", 0), "auc_mean"] == 0.625 and got.loc[("reset_all", 2), "end_mean"] == 1.0
     assert np.isnan(got.loc[("reset_all", 1), "auc_vs_reset_all"])   # the reference against itself: none

@@ -273,9 +273,9 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
                 series.append((axes[1, col], d, [np.nan_to_num(d - lo), np.nan_to_num(hi - d)]))
             for ax, y, err in series:
                 if coloured:
-                    ax.errorbar(x, y, yerr=err, **look)
+                    ax.errorbar(x, y, yerr=err, label=conds.series(cond), **look)
                 else:
-                    ax.plot(x, y, **look)
+                    ax.plot(x, y, label=conds.series(cond), **look)
             if coloured:
                 handles.setdefault(cond, Line2D([], [], color=colour, marker="o", ms=3, lw=0.8,
                                                 label=conds.series(cond)))
