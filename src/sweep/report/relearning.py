@@ -219,7 +219,7 @@ def segment_gains(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
     learned; falling with k: loss of plasticity. reset_all's later segments are fresh draws: its gain is what a
     new network gives against a first one that learned."""
     kept = evals[evals["run_id"].isin(set(relearn.loc[relearn["learned_first"] == 1.0, "run_id"]))]
-    numbers, _ = segment_scores(runs, kept, conds)
+    numbers, _ = segment_scores(runs, kept, conds, reference=None)   # against reset_all's seeds: not like with like
     first = kept.loc[kept["segment"] == 0, ["run_id", "auc"]].rename(columns={"auc": "auc_first"})
     per_seed = kept.merge(first, on="run_id").merge(runs[["run_id", "wind", "condition"]], on="run_id")
     rows = []
@@ -229,8 +229,7 @@ def segment_gains(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
                      f"auc_vs_{FIRST}_low": mean - half, f"auc_vs_{FIRST}_high": mean + half})
     gains = pd.DataFrame(rows, columns=["wind", "condition", "segment", *(f"auc_vs_{FIRST}{s}" for s in
                                                                          ("", "_low", "_high"))])
-    return (numbers.drop(columns=[c for c in numbers if "_vs_" in c])
-            .merge(gains, on=["wind", "condition", "segment"], how="left"))
+    return numbers.merge(gains, on=["wind", "condition", "segment"], how="left")
 
 
 def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame, conds, shown, out) -> list:

@@ -208,15 +208,15 @@ def segments(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions) -> tuple[
     return pd.DataFrame(numbers), pd.DataFrame(display)
 
 
-def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, reference: str = "reset_all"
+def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, reference: str | None = "reset_all"
                    ) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
     """Per condition x wind x segment: the eval-success AUC and end-of-segment success (seed mean, 95% Student-t
     half-width, n; stats.segment_evaluations) and each one's difference to the ``reference`` agent's on the same
-    segment, wind and --by values (95% percentile bootstrap resampling both agents' seeds). Returns (numbers,
-    displays: per measure "auc" and "end", one row per condition x wind, per segment 'mean ± ci (Δ [lo, hi])' in
-    %)."""
+    segment, wind and --by values (95% percentile bootstrap resampling both agents' seeds; none with ``reference``
+    None). Returns (numbers, displays: per measure "auc" and "end", one row per condition x wind, per segment
+    'mean ± ci (Δ [lo, hi])' in %)."""
     df = runs[["run_id", "wind", "condition"]].merge(seg, on="run_id")
-    refs = {c: baseline_of(conds.table, c, "agent", reference) for c in conds.order}
+    refs = {c: baseline_of(conds.table, c, "agent", reference) for c in conds.order} if reference else {}
     numbers, display = [], {"auc": [], "end": []}
     for wind, cond, g in _ordered_groups(df, conds):
         shown = {m: {"Agent": cond, "Wind": wind, "Seeds": g["run_id"].nunique()} for m in display}
@@ -228,13 +228,15 @@ def segment_scores(runs: pd.DataFrame, seg: pd.DataFrame, conds: Conditions, ref
             other = theirs[theirs["segment"] == k]
             for m in ("auc", "end"):
                 mean, half, n = stats.mean_t_ci(s[m])
-                d, lo, hi = stats.mean_diff_ci(s[m], other[m]) if len(other) else (np.nan,) * 3
-                row.update({f"{m}_mean": mean, f"{m}_ci95": half, "n_seeds": n,
-                            f"{m}_vs_{reference}": d, f"{m}_vs_{reference}_low": lo, f"{m}_vs_{reference}_high": hi})
+                row.update({f"{m}_mean": mean, f"{m}_ci95": half, "n_seeds": n})
+                if reference:
+                    d, lo, hi = stats.mean_diff_ci(s[m], other[m]) if len(other) else (np.nan,) * 3
+                    row.update({f"{m}_vs_{reference}": d, f"{m}_vs_{reference}_low": lo,
+                                f"{m}_vs_{reference}_high": hi})
             numbers.append(row)
             for m in display:
                 cell = plus_minus(100 * row[f"{m}_mean"], 100 * row[f"{m}_ci95"], 0)
-                if np.isfinite(row[f"{m}_vs_{reference}"]):
+                if reference and np.isfinite(row[f"{m}_vs_{reference}"]):
                     cell += " (Δ " + interval(100 * row[f"{m}_vs_{reference}"], 100 * row[f"{m}_vs_{reference}_low"],
                                               100 * row[f"{m}_vs_{reference}_high"], 0) + ")"
                 shown[m][f"{k} ({_steps(row['start'])}–{_steps(row['end_step'])})"] = cell
