@@ -1385,7 +1385,7 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
     """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
     seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of
     segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400, 800 and 1200;
-    with ``dormant`` (agent -> four values) the dormant share (+0.001 x seed) at 300, 500, 700 and 900."""
+    with ``dormant`` (agent -> four values) the dormant share (+0.001 x seed) at 400, 500, 700 and 900."""
     known = client.get_experiment_by_name(experiment)
     exp_id = known.experiment_id if known else client.create_experiment(experiment)
     for agent, segs, probe, condition in runs:
@@ -1398,7 +1398,7 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
             metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
             metrics += [Metric("plasticity/dormant_ratio", v + 0.001 * seed, 0, step) for step, v in
-                        zip((300, 500, 700, 900), (dormant or {}).get(agent, []))]
+                        zip((400, 500, 700, 900), (dormant or {}).get(agent, []))]
             client.log_batch(run_id, metrics=metrics, params=[
                 Param("wind.segment_steps", "400"), Param("train.total_timesteps", "1200"),
                 Param("eval.condition", condition), Param("agent.l2.enabled", str(agent in ("l2", "cbp_l2")))])
@@ -1509,14 +1509,14 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
     16)) and by the mean of its readings (ReDo < PPO < L2, whose probe rises: against 3.5, 3.5, 1.5, 1.5, 5.5, 5.5,
     ρ = +8 / sqrt(17.5 x 16)); both equal scipy's spearmanr. Across the 3 agents' means ρ = −1 with no CI (< 6
     pairs). A run evaluated under a fixed condition is left out of re-learning. The dormant share at the changes
-    (400, 800) is the value logged last before each (at 300 and 700, not 500 and 900): L2 0.1, ReDo 0.2, PPO
-    (0.2 + 0.6) / 2 = 0.4, a perfect inverse ranking of re-learning; 500's and 900's values would rank it the other
-    way. No dead-tanh share was logged: no row for it."""
+    (400, 800) is the value logged last at or before each (at 400 and 700, not 500 and 900): L2 0.1, PPO
+    (0.2 + 0.6) / 2 = 0.4, an inverse ranking of re-learning; 500's and 900's values would rank it the other way.
+    ReDo logged no dormant share: left out of that reading only (n 4, no CI). No dead-tanh share was logged: no
+    row for it."""
     from scipy.stats import spearmanr
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
-    dormant = {"l2": [0.1, 0.9, 0.1, 0.9], "redo": [0.2, 0.0, 0.2, 0.0], "ppo": [0.2, 0.0, 0.6, 0.0],
-               "reset_all": [0.0] * 4}
+    dormant = {"l2": [0.1, 0.9, 0.1, 0.9], "ppo": [0.2, 0.0, 0.6, 0.0], "reset_all": [0.0] * 4}
     log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
                      + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")],   # CBP: flown under one fixed wind
@@ -1555,15 +1555,35 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
                                 ("probe_mean", [0.410 / 3, 0.413 / 3, 0.030, 0.031, 0.060, 0.061], 8)):
         row = corr.loc[(reading, "runs (agents x seeds)")]
         assert row["rho"] == pytest.approx(rho / np.sqrt(17.5 * 16)) == pytest.approx(spearmanr(probe, relearn)[0])
-        assert row["n"] == 6 and row["rho_low"] <= row["rho"] <= row["rho_high"]
+        assert row["n"] == 6 and np.isnan(row["rho_low"])   # re-learning: 3 values in pairs, 4 runs off the mode
     agents = corr.loc[("probe_first", "agents (seed means)")]
     assert agents["rho"] == pytest.approx(-1) and agents["n"] == 3 and np.isnan(agents["rho_low"])
     at_changes = corr.loc[("dormant_at_changes", "runs (agents x seeds)")]
-    expected = spearmanr([0.1, 0.101, 0.2, 0.201, 0.4, 0.401], relearn)[0]
-    assert at_changes["rho"] == pytest.approx(expected) and expected < -0.9 and at_changes["n"] == 6
+    expected = spearmanr([0.1, 0.101, 0.4, 0.401], relearn[:2] + relearn[4:])[0]
+    assert at_changes["rho"] == pytest.approx(expected) and expected < -0.8 and at_changes["n"] == 4
+    assert np.isnan(at_changes["rho_low"])
     text = (tmp_path / "out" / "relearning.md").read_text()
     assert "Sokar dormant share at the changes" in text and "dead tanh share" not in text
     assert (tmp_path / "out" / "interval_relearning.png").exists()
+
+
+def test_rank_correlation_interval_needs_enough_runs_off_the_most_common_value():
+    """A reading at 0 in 41 runs and not in one: ρ is that one run, so there is no interval (dropping the resamples
+    that miss it, constant on that side, would give one entirely below 0). Six runs off the mode give one, and a
+    continuous pair gives one around its ρ, which is scipy's."""
+    from scipy.stats import spearmanr
+
+    from sweep.report.relearning import spearman_ci
+
+    relearn = np.linspace(0.3, 0.8, 42)
+    one = np.r_[np.zeros(41), 0.1]
+    rho, low, high, n = spearman_ci(one, relearn[::-1])
+    assert rho == pytest.approx(spearmanr(one, relearn[::-1])[0]) and n == 42 and np.isnan(low) and np.isnan(high)
+    six = np.r_[np.zeros(36), np.arange(1, 7)]
+    assert np.isfinite(spearman_ci(six, relearn)[1])
+    noisy = relearn + np.random.default_rng(0).normal(0, 0.1, 42)
+    rho, low, high, n = spearman_ci(noisy, relearn)
+    assert rho == pytest.approx(spearmanr(noisy, relearn)[0]) and low < rho < high
 
 
 def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):

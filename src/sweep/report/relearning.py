@@ -1,5 +1,6 @@
 """Re-learning after changes (the plasticity study's primary measure, issue 35, docs/plasticity_study.md) and
-whether the plasticity probe predicts it.
+whether a plasticity reading (the probe, the network's dormant, dead-tanh and saturated shares, its weight norm)
+predicts it.
 
 A change the network must re-learn (docs/conditions.md: a wind flip, a payload) starts every segment after the
 first. Per run evaluated under the condition being learned (eval.condition=current; a run evaluated under a fixed
@@ -15,7 +16,7 @@ per-segment eval-success AUCs:
 * ``learned_first``: 1.0 if the first segment had such an evaluation (the network learned the hover from scratch
   before the first change), else 0.0 (NaN without evaluations in it). Outcomes on the hover task are bimodal per
   seed: a seed whose network never learned has lost no plasticity, it never had the skill. So the table also
-  reads ``relearning`` over the seeds that learned, the probe's correlation within those runs, and
+  reads ``relearning`` over the seeds that learned, each reading's correlation within those runs, and
   ``segment_gains`` per segment over them. (reset_all's later segments are fresh networks, so over its seeds that
   learned they read how often a fresh draw re-learns on those seeds.)
 
@@ -101,10 +102,17 @@ def plasticity_readings(histories: pd.DataFrame, evals: pd.DataFrame) -> pd.Data
     return out
 
 
+def _off_mode(values: np.ndarray) -> int:
+    """How many values differ from the most common one."""
+    return int(len(values) - np.unique(values, return_counts=True)[1].max())
+
+
 def spearman_ci(x, y) -> tuple[float, float, float, int]:
     """Spearman's rank correlation of paired samples, its 95% percentile-bootstrap CI (pairs resampled together,
-    stats.RESAMPLES times; resamples with a constant side have no correlation and are left out; no CI below
-    MIN_CI_PAIRS pairs) and n."""
+    stats.RESAMPLES times) and n. No CI below MIN_CI_PAIRS pairs, nor when a side has fewer than MIN_CI_PAIRS
+    values off its most common one (a reading at 0 in all runs but a few: the correlation is those few runs, and
+    the resamples that leave them out, constant on that side, have none; dropping them would give an interval
+    conditioned on those runs being drawn). Otherwise the rare constant resample is left out."""
     from scipy.stats import rankdata
 
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
@@ -117,7 +125,7 @@ def spearman_ci(x, y) -> tuple[float, float, float, int]:
     rx, ry = rx - rx.mean(axis=1, keepdims=True), ry - ry.mean(axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):   # a constant resample: 0 / 0
         rho = (rx * ry).sum(axis=1) / np.sqrt((rx ** 2).sum(axis=1) * (ry ** 2).sum(axis=1))
-    if len(x) < MIN_CI_PAIRS:
+    if min(len(x), _off_mode(x), _off_mode(y)) < MIN_CI_PAIRS:
         return float(rho[0]), np.nan, np.nan, int(len(x))
     low, high = np.nanpercentile(rho[1:], [2.5, 97.5])
     return float(rho[0]), float(low), float(high), int(len(x))
@@ -197,9 +205,9 @@ def reading_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, readings: pd.
     units, larger weights), so a reading that predicts re-learning gives a negative rho."""
     df = runs.loc[runs["agent"] != REFERENCE, ["run_id", "wind", "condition"]]
     df = df.merge(relearn, on="run_id").merge(readings, on="run_id")
-    present = [r for r in READINGS if r in df and df[r].notna().any()]
     rows = []
     for wind, dw in df.groupby("wind"):
+        present = [r for r in READINGS if r in dw and dw[r].notna().any()]   # logged in this wind's runs
         means = dw.groupby("condition")[["relearning", *present]].mean()
         for reading in present:
             for across, d in (("runs (agents x seeds)", dw), (LEARNED_RUNS, dw[dw["learned_first"] == 1.0]),
@@ -302,10 +310,13 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
                  f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} left out (its probe at a change reads "
                  "the freshly drawn network). The probe loss (plasticity/probe_loss: a copy of the policy fitted to "
                  "random targets) at the first change and its mean over the run's readings; the policy network's "
-                 "dormant, dead-tanh and saturated shares and the weight norm at the changes (the last value logged "
+                 "dormant, dead-tanh and saturated shares and the weight norm of the policy and value networks at "
+                 "the changes (the last value logged "
                  "at or before each change, averaged over the run's changes). Higher should mean less plastic for "
                  "each, so a reading that predicts re-learning gives ρ < 0. 95% percentile-bootstrap CI (pairs "
-                 f"resampled; none below {MIN_CI_PAIRS} pairs).\n\n" + markdown(shown.fillna("–")))
+                 f"resampled; none below {MIN_CI_PAIRS} pairs, nor when fewer than {MIN_CI_PAIRS} runs read other "
+                 "than a side's most common value, e.g. a share at 0 in all runs but a few: ρ is then those few "
+                 "runs).\n\n" + markdown(shown.fillna("–")))
         written.append(out / "reading_correlation.csv")
     (out / "relearning.md").write_text(text)
     return written
