@@ -1564,6 +1564,11 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
     assert np.isnan(at_changes["rho_low"])
     text = (tmp_path / "out" / "relearning.md").read_text()
     assert "Sokar dormant share at the changes" in text and "dead tanh share" not in text
+    per_run = pd.read_csv(tmp_path / "out" / "relearning_runs.csv").set_index(["agent", "seed"])   # the same, per run
+    assert len(per_run) == 8 and "cbp_l2" not in per_run.index.get_level_values("agent")   # fixed condition: out
+    assert per_run.loc[("ppo", 1), "dormant_at_changes"] == pytest.approx(0.401)
+    assert per_run.loc[("l2", 0), "relearning"] == 1.0 and np.isnan(per_run.loc[("redo", 0), "dormant_at_changes"])
+    assert per_run.loc[("ppo", 0), "probe_first"] == pytest.approx(0.050)
     assert (tmp_path / "out" / "interval_relearning.png").exists()
 
 
@@ -1691,3 +1696,29 @@ def test_segment_labels_name_what_changes():
                           '{"mass": 1.3, "rotor_efficiency": [1, 1, 1, 1]}]') == ["nominal", "m×1.3"]
     assert segment_labels([3.0, 3.0], "null", None, "[0.0, 100.0]") == ["calm", "σ100"]
     assert segment_labels([3.0], "null", None, "[0.0]") == [3.0]   # no gusts anywhere: as before
+
+
+def test_the_plasticity_study_weight_norm_test_on_a_hand_made_table(tmp_path):
+    """docs/plasticity_study/weight_norm.py: within the learned runs of the agents not left out, weight norms ranked
+    opposite to re-learning give ρ = −1 and 'confirmed' on the payload change; LayerNorm's runs (large weights,
+    the best re-learning), shrink-and-perturb's, reset_all's and a run that never learned segment 0 would break
+    that and are left out; the flip's row is labelled post hoc."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("weight_norm", ROOT / "docs" / "plasticity_study" / "weight_norm.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rows = [{"wind": wind, "agent": agent, "seed": seed, "learned_first": 1.0,
+             "weight_norm_at_changes": 100.0 - 10 * k - seed, "relearning": 0.1 + 0.1 * k + 0.01 * seed}
+            for wind in ("flip", "payload") for k, agent in enumerate(["ppo", "redo", "l2", "l2_lr_decay"])
+            for seed in range(2)]
+    rows += [{"wind": "payload", "agent": agent, "seed": 0, "learned_first": 1.0, "weight_norm_at_changes": w,
+              "relearning": r} for agent, w, r in (("layer_norm", 120.0, 0.9), ("shrink_perturb", 10.0, 0.0),
+                                                   ("reset_all", 200.0, 0.95))]
+    rows.append({"wind": "payload", "agent": "ppo", "seed": 7, "learned_first": 0.0, "weight_norm_at_changes": 300.0,
+                 "relearning": 0.99})
+    (tmp_path / "relearning_runs.csv").write_text(pd.DataFrame(rows).to_csv(index=False))
+    got = module.test(pd.read_csv(tmp_path / "relearning_runs.csv")).set_index("Change")
+    assert got.loc["payload", "Runs"] == 8 and got.loc["payload", "Agents"] == 4
+    assert got.loc["payload", "ρ [95% CI]"].startswith("-1.00") and got.loc["payload", "Verdict"] == "confirmed"
+    assert got.loc["flip", "Verdict"] == "post hoc (suggested the test)"

@@ -12,7 +12,7 @@
 #   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
 #   docs/plasticity_study/run.sh main            # the six phases, the flip change's three first (what a session resumes)
 #   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
-#   docs/plasticity_study/run.sh report          # the main phases' tables, figures and decline.md -> docs/plasticity_study/main
+#   docs/plasticity_study/run.sh report          # the main phases' tables, figures, decline.md, weight_norm.md -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh report flip     # the same for one change's phases only -> docs/plasticity_study/flip
 #   docs/plasticity_study/run.sh export          # FINISHED runs -> docs/plasticity_study/runs (commit them)
 #   docs/plasticity_study/run.sh import          # the archive -> the store (re-make every table without training)
@@ -81,7 +81,8 @@ case ${1:-} in
                  out=$ROOT/docs/plasticity_study/${change:-main}
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity ${change:+"--sweep=-$change"} \
                     --highlight reset_all --vs "$VERSUS" --out "$out")
-                 "$PY" "$ROOT/docs/plasticity_study/decline.py" "$out" > "$out/decline.md" ;;   # the early-vs-late test
+                 "$PY" "$ROOT/docs/plasticity_study/decline.py" "$out" > "$out/decline.md"   # the early-vs-late test
+                 "$PY" "$ROOT/docs/plasticity_study/weight_norm.py" "$out" > "$out/weight_norm.md" ;;   # fixed 12-05
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                     --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do

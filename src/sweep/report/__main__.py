@@ -18,7 +18,8 @@ add segment_scores.{md,csv} and the figures segment_scores (the AUC per segment 
 wind) and segment_scores_end (the same for the success at each segment's end), the AUC over the seeds that
 learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's segments),
 relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the rank correlation of the probe and
-the network's readings to it, reading_correlation.csv) and interval_relearning.
+the network's readings to it, reading_correlation.csv; every run's measures and readings in relearning_runs.csv)
+and interval_relearning.
 """
 from __future__ import annotations
 

@@ -275,7 +275,8 @@ def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
 def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, evals: pd.DataFrame,
           relearn: pd.DataFrame, conds, out, vs: list[str] = ()) -> list:
     """relearning.csv/.md (the table, with columns against the --vs agents, and each plasticity reading's
-    correlation with it) and reading_correlation.csv; nothing without runs that per_run scores."""
+    correlation with it), reading_correlation.csv and relearning_runs.csv (per run: per_run's measures and
+    plasticity_readings); nothing without runs that per_run scores."""
     if not len(relearn):
         return []
     numbers, display = table(runs, per_run, relearn, conds, vs=vs)
@@ -295,8 +296,12 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
             "the re-learning AUC over those seeds alone (a seed that never learned has no plasticity to lose); "
             "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
-    written = [out / "relearning.csv", out / "relearning.md"]
     readings = plasticity_readings(histories, evals)
+    identity = ["run_id", "run_name", "agent", "condition", "wind", "seed"]
+    (runs[[c for c in identity if c in runs]].merge(relearn, on="run_id").merge(readings, on="run_id", how="left")
+     .sort_values(["wind", "agent", "condition", "seed"])
+     .to_csv(out / "relearning_runs.csv", index=False))   # per run: for analyses the report does not make
+    written = [out / "relearning.csv", out / "relearning.md", out / "relearning_runs.csv"]
     corr = reading_correlation(runs, relearn, readings)
     if len(corr):
         corr.to_csv(out / "reading_correlation.csv", index=False)
