@@ -275,7 +275,8 @@ def log_reading_runs(client: MlflowClient, experiment: str) -> None:
 def spy_figures(monkeypatch) -> dict:
     """Stem -> what figures.save was given: per panel its y label, its curves (label -> y values; points with error
     bars too) and texts; the figure's own texts (the note below the legend) and the legend's labels. A panel
-    without a y label of its own (a shared axis' second column) is left out."""
+    without a y label of its own (a shared axis' second column) is left out of "panels"; "scatter" has every
+    visible panel's title, x label and scale and its labelled scatter points (label -> (x, y) rows)."""
     drawn, save = {}, figures.save
 
     def spy(fig, out, stem):
@@ -287,6 +288,10 @@ def spy_figures(monkeypatch) -> dict:
                                    **{bars.get_label(): bars.lines[0].get_ydata() for bars in ax.containers
                                       if isinstance(bars, ErrorbarContainer) and not bars.get_label().startswith("_")}}}
                        for ax in axes],
+            "scatter": [{"title": ax.get_title(), "xlabel": ax.get_xlabel(), "xscale": ax.get_xscale(),
+                         "points": {c.get_label(): np.asarray(c.get_offsets()) for c in ax.collections
+                                    if not c.get_label().startswith("_") and len(c.get_offsets())}}
+                        for ax in fig.axes if ax.get_visible()],
             "note": " ".join(t.get_text() for t in fig.texts).replace("\n", " "),
             "legend": [t.get_text() for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)] if leg
                        for t in leg.get_texts()]}
@@ -1500,7 +1505,7 @@ RELEARN_EVALS = {  # agent -> (evaluations every 100 steps in three segments of 
 }
 
 
-def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_path):
+def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_path, monkeypatch):
     """Re-learning = the mean eval-success AUC over the segments after the first. reset_all: 62.5% in every segment;
     PPO: 100% then 12.5% -> 56.25% (Δ −6.25 pp, P(> reset_all) 0), its later segments end at 100% and 50%; ReDo
     75%; L2: 100% (Δ +37.5 pp, P 1), its first segment 37.5%. Seeds alike except the probe (+0.001 x seed).
@@ -1521,6 +1526,7 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
                      + [("cbp_l2", *RELEARN_EVALS["l2"], "fixed")],   # CBP: flown under one fixed wind
                      dormant=dormant)
+    drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "relearn", "--vs", "redo,ppo")
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
@@ -1564,6 +1570,16 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
     assert np.isnan(at_changes["rho_low"])
     text = (tmp_path / "out" / "relearning.md").read_text()
     assert "Sokar dormant share at the changes" in text and "dead tanh share" not in text
+    # the figure: each run a point at its reading and re-learning (%), filled (learned segment 0) here; the
+    # panel's title has the ρ of the table; reset_all and the fixed-condition run are not drawn
+    panels = {p["xlabel"]: p for p in drawn["readings_flip"]["scatter"]}
+    assert set(panels) == {"Probe loss at the first change", "Probe loss, mean of the readings",
+                           "Sokar dormant at the changes (%)"}
+    dormant = panels["Sokar dormant at the changes (%)"]
+    assert dormant["points"]["PPO (learned)"].ravel().tolist() == pytest.approx([40.0, 56.25, 40.1, 56.25])
+    assert not any(k.startswith(("reset_all", "CBP")) for k in dormant["points"])
+    assert not any("never learned" in k for k in dormant["points"])
+    assert f"{at_changes['rho']:.2f}" in dormant["title"] and panels["Probe loss at the first change"]["xscale"] == "log"
     per_run = pd.read_csv(tmp_path / "out" / "relearning_runs.csv").set_index(["agent", "seed"])   # the same, per run
     assert len(per_run) == 8 and "cbp_l2" not in per_run.index.get_level_values("agent")   # fixed condition: out
     assert per_run.loc[("ppo", 1), "dormant_at_changes"] == pytest.approx(0.401)
@@ -1591,7 +1607,7 @@ def test_rank_correlation_interval_needs_enough_runs_off_the_most_common_value()
     assert rho == pytest.approx(spearmanr(noisy, relearn)[0]) and low < rho < high
 
 
-def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
+def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path, monkeypatch):
     """Bimodal seeds: PPO's seed 0 learns segment 0 and re-learns 56.25% (as above), its seed 1 never hovers (0%):
     1 of 2 seeds learned, re-learning 28.125% over both and 56.25% over the one (no CI from one seed). L2 (100%)
     and ReDo (75%) learn in both seeds. The probe's first reading within the 5 runs that learned (PPO's seed 1 out):
@@ -1610,8 +1626,12 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path):
     log_segment_runs(MlflowClient(uri), "bimodal", [(agent, segs, probe, "current") for agent, (segs, probe) in
                                                     {**RELEARN_EVALS, "ppo": (ppo, RELEARN_EVALS["ppo"][1]),
                                                      "reset_all": (reset_all, RELEARN_EVALS["reset_all"][1])}.items()])
+    drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "bimodal")
     assert code == 0, stdout + stderr
+    probe_panel = drawn["readings_flip"]["scatter"][0]   # PPO's seed that never hovered: its own (hollow) points
+    assert probe_panel["points"]["PPO (never learned)"].ravel().tolist() == pytest.approx([0.051, 0.0])
+    assert probe_panel["points"]["PPO (learned)"].ravel().tolist() == pytest.approx([0.050, 56.25])
     got = pd.read_csv(tmp_path / "out" / "relearning.csv").set_index("agent")
     assert got.loc["ppo", "relearning"] == pytest.approx(0.28125) and got.loc["ppo", "learned_first_seeds"] == 1
     assert got.loc["ppo", "relearning_if_learned"] == pytest.approx(0.5625)

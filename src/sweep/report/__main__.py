@@ -18,8 +18,8 @@ add segment_scores.{md,csv} and the figures segment_scores (the AUC per segment 
 wind) and segment_scores_end (the same for the success at each segment's end), the AUC over the seeds that
 learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's segments),
 relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the rank correlation of the probe and
-the network's readings to it, reading_correlation.csv; every run's measures and readings in relearning_runs.csv)
-and interval_relearning.
+the network's readings to it, reading_correlation.csv and the figure readings_<wind>; every run's measures and
+readings in relearning_runs.csv) and interval_relearning.
 """
 from __future__ import annotations
 
@@ -126,7 +126,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         written += figures.position_axes(trajs, picked, wind, conds, radius, out_dir, policy)
 
     written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals, scores)
-    written += relearning.write(runs, per_run, histories, evals, relearn, conds, out_dir, vs)
+    written += relearning.write(runs, per_run, histories, evals, relearn, conds, shown, out_dir, vs)
     written += relearning.write_learned(runs, evals, relearn, conds, shown, out_dir)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())

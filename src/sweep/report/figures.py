@@ -302,6 +302,58 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
     return save(fig, out, name)
 
 
+def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds, shown, out: Path) -> list[Path]:
+    """Figure readings_<wind> (relearning.reading_correlation's data, one file per wind): one panel per reading
+    (``readings``: column -> relearning.Reading: axis label, scale, log axis), each run a point at its reading and its re-learning
+    AUC; filled if it learned segment 0, hollow if it never did. The agents ``shown`` colours are in colour, the
+    rest grey; ``titles[(wind, column)]``, the panel's title (the report gives Spearman's ρ with its CI there), so
+    the reader sees which runs make a correlation."""
+    written = []
+    for wind, sub in per_run.groupby("wind"):
+        present = [c for c in readings if c in sub and sub[c].notna().any()]
+        if not present:
+            continue
+        cols = min(len(present), 3)
+        rows = -(-len(present) // cols)
+        fig, axes = plt.subplots(rows, cols, sharey=True, squeeze=False, layout="constrained",
+                                 figsize=(style.figure_width(cols), 2.1 * rows + 0.6))
+        handles = {}
+        order = _back_to_front([c for c in conds.order if c in set(sub["condition"])], conds, shown, wind)
+        for ax, column in zip(axes.flat, present):
+            axis, scale, log = readings[column].axis, readings[column].scale, readings[column].log
+            for cond in order:
+                runs = sub[(sub["condition"] == cond) & sub[column].notna()]
+                coloured = shown.is_coloured(wind, conds.agent(cond))
+                colour = conds.color(cond) if coloured else style.GREY
+                for learned, face in ((True, colour), (False, "none")):
+                    pick = runs[(runs["learned_first"] == 1.0) == learned]
+                    ax.scatter(scale * pick[column], 100 * pick["relearning"], s=14 if coloured else 8,
+                               facecolors=face, edgecolors=colour, linewidths=0.7, zorder=3 if coloured else 1,
+                               label=f"{conds.series(cond)} ({'learned' if learned else 'never learned'})")
+                if coloured:
+                    handles.setdefault(cond, Line2D([], [], color=colour, marker="o", lw=0, ms=4,
+                                                    label=conds.series(cond)))
+            if log:
+                ax.set_xscale("log")
+            ax.set_xlabel(axis, fontsize="small")
+            ax.set_title(titles.get((wind, column), ""), fontsize="x-small")
+        for ax in axes.flat[len(present):]:
+            ax.set_visible(False)
+        for ax in axes[:, 0]:
+            ax.set_ylabel("Re-learning AUC (%)")
+        ordered = [handles[c] for c in conds.order if c in handles]
+        ordered += [Line2D([], [], color="0.3", marker="o", lw=0, ms=4, label="learned segment 0"),
+                    Line2D([], [], color="0.3", marker="o", mfc="none", lw=0, ms=4, label="never learned it"),
+                    Line2D([], [], color=style.GREY, marker="o", lw=0, ms=3, label="other agents")]
+        fig.legend(handles=ordered, fontsize="x-small", ncol=min(len(ordered), 5), frameon=False,
+                   loc="outside lower center")
+        fig.suptitle(textwrap.fill(f"{style.arm_title(wind)}: each run's plasticity reading at the changes against "
+                                   "its re-learning (reset_all left out); higher reading = less plastic, so a "
+                                   "predictor slopes down", 110), fontsize="small")
+        written += save(fig, out, f"readings_{wind}")
+    return written
+
+
 def transfer_gap(seeds: pd.DataFrame, numbers: pd.DataFrame, out: Path) -> list[Path]:
     """Figure transfer_gap (``sweep.report.transfer``): one panel per change, its three cells side by side (A on A,
     A on B: the same policies, joined per seed; B on B: fresh networks), each seed a dot, the mean with its 95%

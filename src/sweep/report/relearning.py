@@ -31,6 +31,8 @@ hook runs before the probe at every change, so its probe reads a freshly drawn n
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import pandas as pd
 
@@ -49,11 +51,25 @@ COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_aft
 # network readings read at the changes (plasticity_readings): column -> metric; higher should mean less plastic
 AT_CHANGES = {"dormant_at_changes": "plasticity/dormant_ratio", "dead_tanh_at_changes": "plasticity/dead_tanh_ratio",
               "saturated_at_changes": "plasticity/saturated_ratio", "weight_norm_at_changes": "plasticity/weight_norm"}
-READINGS = {"probe_first": "probe loss at the first change", "probe_mean": "probe loss, mean of the run's readings",
-            "dormant_at_changes": "Sokar dormant share at the changes",
-            "dead_tanh_at_changes": "dead tanh share at the changes",
-            "saturated_at_changes": "saturated share at the changes",
-            "weight_norm_at_changes": "weight norm at the changes"}
+
+
+class Reading(NamedTuple):
+    """How the report shows a reading: its name in tables, its figure axis' label, the axis' scale and whether the
+    axis is logarithmic."""
+    name: str
+    axis: str
+    scale: float = 1.0
+    log: bool = False
+
+
+READINGS = {"probe_first": Reading("probe loss at the first change", "Probe loss at the first change", log=True),
+            "probe_mean": Reading("probe loss, mean of the run's readings", "Probe loss, mean of the readings",
+                                  log=True),
+            "dormant_at_changes": Reading("Sokar dormant share at the changes", "Sokar dormant at the changes (%)",
+                                          100.0),
+            "dead_tanh_at_changes": Reading("dead tanh share at the changes", "Dead tanh at the changes (%)", 100.0),
+            "saturated_at_changes": Reading("saturated share at the changes", "Saturated at the changes (%)", 100.0),
+            "weight_norm_at_changes": Reading("weight norm at the changes", "Weight norm at the changes")}
 MIN_CI_PAIRS = 6          # fewer pairs: a rank correlation's bootstrap CI would look precise and mean nothing
 
 
@@ -272,11 +288,21 @@ def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
                                      runs_shown=LEARNED_TITLE, diff_label="AUC gain over its\nown segment 0 (points)"))
 
 
+def _rho_title(corr: pd.DataFrame) -> str:
+    """A readings panel's title: one reading's ρ [CI] across every run and across the runs that learned."""
+    lines = []
+    for name, across in (("all runs", "runs (agents x seeds)"), ("learned", LEARNED_RUNS)):
+        for r in corr[(corr["across"] == across) & np.isfinite(corr["rho"])].itertuples():
+            lines.append(f"{name}: ρ {interval(r.rho, r.rho_low, r.rho_high, 2)}")
+    return "\n".join(lines)
+
+
 def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, evals: pd.DataFrame,
-          relearn: pd.DataFrame, conds, out, vs: list[str] = ()) -> list:
+          relearn: pd.DataFrame, conds, shown, out, vs: list[str] = ()) -> list:
     """relearning.csv/.md (the table, with columns against the --vs agents, and each plasticity reading's
-    correlation with it), reading_correlation.csv and relearning_runs.csv (per run: per_run's measures and
-    plasticity_readings); nothing without runs that per_run scores."""
+    correlation with it), reading_correlation.csv, relearning_runs.csv (per run: per_run's measures and
+    plasticity_readings) and the figure readings_<wind> (figures.readings_scatter, ``shown`` in colour); nothing
+    without runs that per_run scores."""
     if not len(relearn):
         return []
     numbers, display = table(runs, per_run, relearn, conds, vs=vs)
@@ -298,18 +324,18 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     readings = plasticity_readings(histories, evals)
     identity = ["run_id", "run_name", "agent", "condition", "wind", "seed"]
-    (runs[[c for c in identity if c in runs]].merge(relearn, on="run_id").merge(readings, on="run_id", how="left")
-     .sort_values(["wind", "agent", "condition", "seed"])
-     .to_csv(out / "relearning_runs.csv", index=False))   # per run: for analyses the report does not make
+    scored = (runs[[c for c in identity if c in runs]].merge(relearn, on="run_id")
+              .merge(readings, on="run_id", how="left").sort_values(["wind", "agent", "condition", "seed"]))
+    scored.to_csv(out / "relearning_runs.csv", index=False)   # per run: for analyses the report does not make
     written = [out / "relearning.csv", out / "relearning.md", out / "relearning_runs.csv"]
     corr = reading_correlation(runs, relearn, readings)
     if len(corr):
         corr.to_csv(out / "reading_correlation.csv", index=False)
         corr["cell"] = [interval(r.rho, r.rho_low, r.rho_high, 2) + f" (n {r.n})" for r in corr.itertuples()]
-        shown = corr.pivot_table(index=["wind", "reading"], columns="across", values="cell", aggfunc="first",
-                                 sort=False).reset_index()
-        shown = pd.DataFrame({"Wind": shown["wind"], "Reading": shown["reading"].map(READINGS),
-                              **{f"ρ across {a}": shown[a] for a in corr["across"].unique()}})
+        wide = corr.pivot_table(index=["wind", "reading"], columns="across", values="cell", aggfunc="first",
+                                sort=False).reset_index()
+        rhos = pd.DataFrame({"Wind": wide["wind"], "Reading": [READINGS[r].name for r in wide["reading"]],
+                             **{f"ρ across {a}": wide[a] for a in corr["across"].unique()}})
         text += ("\n\nDoes a plasticity reading predict re-learning? Spearman's rank correlation [95% CI] between a "
                  "run's reading and its re-learning AUC, across runs, across the "
                  f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} left out (its probe at a change reads "
@@ -321,7 +347,10 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
                  "each, so a reading that predicts re-learning gives ρ < 0. 95% percentile-bootstrap CI (pairs "
                  f"resampled; none below {MIN_CI_PAIRS} pairs, nor when fewer than {MIN_CI_PAIRS} runs read other "
                  "than a side's most common value, e.g. a share at 0 in all runs but a few: ρ is then those few "
-                 "runs).\n\n" + markdown(shown.fillna("–")))
+                 "runs).\n\n" + markdown(rhos.fillna("–")))
         written.append(out / "reading_correlation.csv")
+        titles = {(wind, reading): _rho_title(g) for (wind, reading), g in corr.groupby(["wind", "reading"])}
+        written += figures.readings_scatter(scored[scored["agent"] != REFERENCE], READINGS, titles, conds, shown,
+                                            out)
     (out / "relearning.md").write_text(text)
     return written
