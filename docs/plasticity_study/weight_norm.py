@@ -4,19 +4,23 @@ On the flip change, the report's rank correlation of the weight norm at the chan
 +0.46 within the runs that learned segment 0, driven by the agents at its two ends (shrink-and-perturb: the
 smallest weights and the least re-learning; LayerNorm: among the largest and the best). With those left out, the
 other learned runs gave -0.45 [-0.69, -0.13]: a reading made after seeing the data (docs/plasticity_study.md,
-"Does the probe, or another plasticity reading, predict re-learning?"). Fixed on 12-05, when 30 of the payload
-change's 144 runs had FINISHED and none of their results had been read, the test on the payload change is:
+"Does the probe, or another plasticity reading, predict re-learning?"). Fixed in commit abe3d96 (12-05 22:48),
+when 30 of the payload change's 144 runs had FINISHED and their results had not been read beyond the study's
+progress listing (which prints each run's per-segment success), the test on the payload change is:
 
     runs: evaluated under the condition being learned, that learned segment 0 (learned_first = 1), of every agent
-          but reset_all (fresh networks), LayerNorm, the LayerNorm combination and shrink-and-perturb;
+          but reset_all (fresh networks), LayerNorm and the combination (LayerNorm + L2 + LR decay by 8M: the same
+          normalisation, left out with it) and shrink-and-perturb;
     rho:  Spearman's rank correlation between weight_norm_at_changes (the policy and value networks' weight norm,
           the last value logged at or before each change, averaged over the run's changes) and relearning (the
           mean eval-success AUC over the segments after the first), with its 95% bootstrap CI
           (sweep.report.relearning.spearman_ci);
     confirmed if the CI lies below 0; not confirmed otherwise.
 
-It reads the report's relearning_runs.csv (every run's measures and readings). The flip's row is the reading that
-suggested the test, not a test. Run from the repo root on a report folder:
+It reads the report's relearning_runs.csv (every run's measures and readings), as sweep.report computes them at
+abe3d96 (learned_first, the readings at the changes, spearman_ci's resamples and seed); later edits of this file
+change its wording only. The flip's row is the reading that suggested the test, not a test. Run from the repo root
+on a report folder:
 
     .venv/bin/python docs/plasticity_study/weight_norm.py docs/plasticity_study/main
 """
@@ -26,7 +30,7 @@ from pathlib import Path
 import pandas as pd
 
 from sweep.report.relearning import spearman_ci
-from sweep.report.tables import interval
+from sweep.report.tables import interval, markdown
 
 LEFT_OUT = ("reset_all", "layer_norm", "layer_norm_l2_lr_decay_8m", "shrink_perturb")
 READING = "weight_norm_at_changes"
@@ -51,10 +55,7 @@ def main(folder: Path) -> None:
     print("Larger weights at the changes, worse re-learning? Spearman's ρ between the weight norm at the changes and "
           "the re-learning AUC, within the runs that learned segment 0, every agent but " + ", ".join(LEFT_OUT)
           + " (docs/plasticity_study/weight_norm.py). Confirmed if the 95% CI lies below 0.\n")
-    print("| " + " | ".join(table.columns) + " |")
-    print("|" + "---|" * len(table.columns))
-    for row in table.itertuples(index=False):
-        print("| " + " | ".join(str(v) for v in row) + " |")
+    print(markdown(table))
 
 
 if __name__ == "__main__":

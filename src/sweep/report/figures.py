@@ -304,10 +304,10 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
 
 def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds, shown, out: Path) -> list[Path]:
     """Figure readings_<wind> (relearning.reading_correlation's data, one file per wind): one panel per reading
-    (``readings``: column -> relearning.Reading: axis label, scale, log axis), each run a point at its reading and its re-learning
-    AUC; filled if it learned segment 0, hollow if it never did. The agents ``shown`` colours are in colour, the
-    rest grey; ``titles[(wind, column)]``, the panel's title (the report gives Spearman's ρ with its CI there), so
-    the reader sees which runs make a correlation."""
+    (``readings``: column -> relearning.Reading, its axis label, scale and log axis), each run a point at its
+    reading and its re-learning AUC; filled if it learned segment 0 (``learned_first`` 1), hollow if not. Agents
+    that ``shown`` colours in this wind are in their colour, the rest grey. ``titles[(wind, column)]``: the panel's
+    title (the report puts Spearman's ρ there), so the reader sees which runs make a correlation."""
     written = []
     for wind, sub in per_run.groupby("wind"):
         present = [c for c in readings if c in sub and sub[c].notna().any()]
@@ -329,7 +329,7 @@ def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds,
                     pick = runs[(runs["learned_first"] == 1.0) == learned]
                     ax.scatter(scale * pick[column], 100 * pick["relearning"], s=14 if coloured else 8,
                                facecolors=face, edgecolors=colour, linewidths=0.7, zorder=3 if coloured else 1,
-                               label=f"{conds.series(cond)} ({'learned' if learned else 'never learned'})")
+                               label=f"{conds.series(cond)} ({'learned' if learned else 'not learned'})")
                 if coloured:
                     handles.setdefault(cond, Line2D([], [], color=colour, marker="o", lw=0, ms=4,
                                                     label=conds.series(cond)))
@@ -343,7 +343,7 @@ def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds,
             ax.set_ylabel("Re-learning AUC (%)")
         ordered = [handles[c] for c in conds.order if c in handles]
         ordered += [Line2D([], [], color="0.3", marker="o", lw=0, ms=4, label="learned segment 0"),
-                    Line2D([], [], color="0.3", marker="o", mfc="none", lw=0, ms=4, label="never learned it"),
+                    Line2D([], [], color="0.3", marker="o", mfc="none", lw=0, ms=4, label="did not learn it"),
                     Line2D([], [], color=style.GREY, marker="o", lw=0, ms=3, label="other agents")]
         fig.legend(handles=ordered, fontsize="x-small", ncol=min(len(ordered), 5), frameon=False,
                    loc="outside lower center")

@@ -39,8 +39,8 @@ import pandas as pd
 from sweep.metrics import CURVES, PROBE
 from sweep.report import figures, stats
 from sweep.report.conditions import baseline_of
-from sweep.report.tables import (_fixed, _identity, _ordered_groups, _per_seed, interval, markdown, plus_minus,
-                                 provenance, segment_scores)
+from sweep.report.tables import (IDENTITY, _fixed, _identity, _ordered_groups, _per_seed, interval, markdown,
+                                 plus_minus, provenance, segment_scores)
 
 REFERENCE = "reset_all"   # the fresh network at every change
 LEARNED_RUNS = "runs that learned segment 0"   # reading_correlation's within-runs reading
@@ -289,11 +289,13 @@ def write_learned(runs: pd.DataFrame, evals: pd.DataFrame, relearn: pd.DataFrame
 
 
 def _rho_title(corr: pd.DataFrame) -> str:
-    """A readings panel's title: one reading's ρ [CI] across every run and across the runs that learned."""
+    """A readings panel's title: one reading's ρ [CI] and n across every run and across the runs that learned
+    segment 0 ('no CI' where spearman_ci gives none)."""
     lines = []
     for name, across in (("all runs", "runs (agents x seeds)"), ("learned", LEARNED_RUNS)):
         for r in corr[(corr["across"] == across) & np.isfinite(corr["rho"])].itertuples():
-            lines.append(f"{name}: ρ {interval(r.rho, r.rho_low, r.rho_high, 2)}")
+            lines.append(f"{name} (n {r.n}): ρ {interval(r.rho, r.rho_low, r.rho_high, 2)}"
+                         + ("" if np.isfinite(r.rho_low) else ", no CI"))
     return "\n".join(lines)
 
 
@@ -323,8 +325,7 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
             "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     readings = plasticity_readings(histories, evals)
-    identity = ["run_id", "run_name", "agent", "condition", "wind", "seed"]
-    scored = (runs[[c for c in identity if c in runs]].merge(relearn, on="run_id")
+    scored = (runs[[c for c in IDENTITY if c in runs]].merge(relearn, on="run_id")
               .merge(readings, on="run_id", how="left").sort_values(["wind", "agent", "condition", "seed"]))
     scored.to_csv(out / "relearning_runs.csv", index=False)   # per run: for analyses the report does not make
     written = [out / "relearning.csv", out / "relearning.md", out / "relearning_runs.csv"]

@@ -17,6 +17,9 @@ from sweep.report.conditions import Conditions, baseline_of
 SUFFIX = {"final": "", "best": "_best", "best_eval": "_best_eval"}
 SHOWN = ("final", "best")
 
+# the columns that name a run in the report's per-run files (segment_runs.csv, relearning_runs.csv)
+IDENTITY = ["run_id", "run_name", "agent", "condition", "wind", "seed", "eval_condition"]
+
 
 def plus_minus(mean: float, half: float, digits: int) -> str:
     if not np.isfinite(mean):
@@ -465,8 +468,7 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     if len(evals) and (evals.groupby("run_id")["segment"].nunique() > 1).any():   # in-training evaluations per segment
         e_numbers, e_display = segment_scores(runs, evals, conds) if scores is None else scores
         e_numbers.to_csv(out / "segment_scores.csv", index=False)
-        identity = ["run_id", "run_name", "agent", "condition", "wind", "seed", "eval_condition"]
-        per_segment = runs[[c for c in identity if c in runs]].merge(evals, on="run_id")
+        per_segment = runs[[c for c in IDENTITY if c in runs]].merge(evals, on="run_id")
         per_segment.sort_values(["wind", "agent", "condition", "seed", "segment"]).to_csv(
             out / "segment_runs.csv", index=False)   # every run's segments: for analyses the report does not make
         flown = ", ".join(sorted({str(v) for v in runs.get("eval_condition", pd.Series(dtype=object)).dropna()})) or "fixed"
