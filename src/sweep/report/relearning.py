@@ -43,6 +43,7 @@ from sweep.report.tables import (IDENTITY, _fixed, _identity, _ordered_groups, _
                                  plus_minus, provenance, segment_scores)
 
 REFERENCE = "reset_all"   # the fresh network at every change
+ALL_RUNS = "runs (agents x seeds)"          # reading_correlation's across-runs reading
 LEARNED_RUNS = "runs that learned segment 0"   # reading_correlation's within-runs reading
 LEARNED_TITLE = "the seeds that learned segment 0"
 FIRST = "first"           # segment_gains' reference: the run's own segment 0
@@ -226,7 +227,7 @@ def reading_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, readings: pd.
         present = [r for r in READINGS if r in dw and dw[r].notna().any()]   # logged in this wind's runs
         means = dw.groupby("condition")[["relearning", *present]].mean()
         for reading in present:
-            for across, d in (("runs (agents x seeds)", dw), (LEARNED_RUNS, dw[dw["learned_first"] == 1.0]),
+            for across, d in ((ALL_RUNS, dw), (LEARNED_RUNS, dw[dw["learned_first"] == 1.0]),
                               ("agents (seed means)", means)):
                 rho, low, high, n = spearman_ci(d[reading], d["relearning"])
                 rows.append({"wind": wind, "reading": reading, "across": across, "rho": rho, "rho_low": low,
@@ -292,7 +293,7 @@ def _rho_title(corr: pd.DataFrame) -> str:
     """A readings panel's title: one reading's ρ [CI] and n across every run and across the runs that learned
     segment 0 ('no CI' where spearman_ci gives none)."""
     lines = []
-    for name, across in (("all runs", "runs (agents x seeds)"), ("learned", LEARNED_RUNS)):
+    for name, across in (("all runs", ALL_RUNS), ("learned", LEARNED_RUNS)):
         for r in corr[(corr["across"] == across) & np.isfinite(corr["rho"])].itertuples():
             lines.append(f"{name} (n {r.n}): ρ {interval(r.rho, r.rho_low, r.rho_high, 2)}"
                          + ("" if np.isfinite(r.rho_low) else ", no CI"))
