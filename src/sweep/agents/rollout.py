@@ -37,9 +37,16 @@ from sweep.envs.gusts import add_gusts
 from sweep.envs.hover import action_to_rotor_speed, task_outcome
 
 LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+# The networks' fast-math flags: fused multiply-adds and no NaN/inf/signed-zero care, but no reassociation and no
+# reciprocals. numba links a callee's code into each caller and optimises it again there, and a process that compiles
+# ``mlp`` itself runs its own build where one that loads the callers from numba's cache runs theirs: with reassociation
+# and reciprocals (``fastmath=True``) those builds summed LayerNorm's mean and variance in other orders, so the first
+# jobs on a new machine flew LayerNorm networks with other last bits (README, Determinism). These flags give every
+# build the same numbers (tests/test_reference_history.py compiles afresh and from the cache).
+FASTMATH = {"contract", "nnan", "ninf", "nsz"}
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
+@numba.njit(cache=True, fastmath=FASTMATH, inline="always")
 def tanh(x):
     """float32 tanh: x p(x^2) / q(x^2) on x clamped to +-7.9053 (Eigen's ptanh_float coefficients)."""
     x = min(max(x, np.float32(-7.90531110763549805)), np.float32(7.90531110763549805))
@@ -85,7 +92,7 @@ class Buffer(NamedTuple):
     log_probs: np.ndarray
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def mlp(x, net, relu, layer_norm, h_in, h_out, out):
     """out = MLP(x) for one input row: hidden layers Linear [-> LayerNorm(scale, shift)] -> tanh (or ReLU), linear
     output. ``h_in``/``h_out`` are scratch rows at least as wide as the widest layer (``widest``)."""
