@@ -47,21 +47,25 @@ ARCHIVE=$ROOT/docs/plasticity_study/runs
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 mkdir -p "$STUDY"
 
-warm() {  # warm CODE: one short LayerNorm run of that code in a throwaway store, so that numba caches the compiled
-          # rollout before any job starts. At these commits a process that compiles the rollout itself (the first jobs
-          # on a new machine) runs LayerNorm networks with other last bits than one that loads it from numba's cache,
-          # which every other job does (README, Determinism); warmed, every job loads it.
-  local tmp; tmp=$(mktemp -d)
-  (cd "$tmp" && MLFLOW_TRACKING_URI=sqlite:///$tmp/mlflow.db PYTHONPATH=$1/src "$PY" -m sweep experiment=plasticity \
-     agent=layer_norm train.total_timesteps=4096 wind.segment_steps=2048 eval.every_timesteps=2048 eval.episodes=2 \
-     train.checkpoint_dir="$tmp/ckpt" hydra.run.dir="$tmp/run" > "$tmp/log" 2>&1) || { tail -5 "$tmp/log"; exit 1; }
+warm() {  # warm CODE OVERRIDES...: one short LayerNorm run of that code, under the phase's change (its wind= and
+          # vehicle= overrides), in a throwaway store, so that numba caches the compiled rollout before any job
+          # starts. At the study's commits a process that compiles the rollout itself (a job that finds no cache, and
+          # the later jobs of its joblib worker) flies LayerNorm networks with other last bits than one that loads it
+          # from numba's cache (README, Determinism); warmed, every job loads it.
+  local code=$1 tmp change=() arg; shift
+  for arg in "$@"; do case $arg in wind=*|vehicle=*) change+=("$arg") ;; esac; done
+  tmp=$(mktemp -d)
+  (cd "$tmp" && MLFLOW_TRACKING_URI=sqlite:///$tmp/mlflow.db PYTHONPATH=$code/src "$PY" -m sweep experiment=plasticity \
+     agent=layer_norm "${change[@]}" train.total_timesteps=4096 wind.segment_steps=2048 eval.every_timesteps=2048 \
+     eval.episodes=2 train.checkpoint_dir="$tmp/ckpt" hydra.run.dir="$tmp/run" > "$tmp/log" 2>&1) \
+    || { tail -5 "$tmp/log"; echo "run.sh: warming numba's cache failed; its log: $tmp/log"; exit 1; }
   rm -rf "$tmp"
 }
 
 sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's store and checkpoints; output under $STUDY
   local commit=$1 code=$STUDY/code-$1 name=$2; shift 2
   [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
-  warm "$code"
+  warm "$code" "$@"
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=plasticity train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
 }
