@@ -22,7 +22,8 @@ The networks run here in float32 from weights laid out (in, out) per layer, with
 shift per hidden layer (``Mlp``; unused without ``layer_norm``); the JAX learner re-exports them after every
 update. ``tanh`` is the float32 rational approximation XLA's CPU backend (Eigen) evaluates: within 2.6e-7 of
 tanh, bit-identical to ``jnp.tanh`` for ~80% of inputs (libm's: ~30%), and it vectorises, so the rollout's
-policy is the update's policy, 3x cheaper.
+policy is the update's policy, 3x cheaper. The networks' fast math fuses multiply-adds but reorders no sum
+(``FASTMATH``), so a build numba compiles in the process and one it loads from its cache give the same numbers.
 """
 from __future__ import annotations
 
