@@ -190,7 +190,9 @@ def test_adam_steps_the_same_whatever_mkl_branch_computes_it():
 
     (fused, loop), *others = [steps(b) for b in ("COMPATIBLE", "AVX2", "SSE4_2", "AUTO")]
     assert all(f == fused for f, _ in others)
-    assert any(lp != loop for _, lp in others)   # MKL's branch does change torch's default Adam (AVX2, AUTO here)
+    if all(lp == loop for _, lp in others):   # the AMD EPYC (12-06): MKL's branches give the default Adam one result
+        pytest.skip("on this CPU MKL's branches do not change torch's default Adam: the comparison cannot fail here")
+    # on the Intel Xeon MKL's branch changes torch's default Adam (AVX2, AUTO), so the comparison can fail there
 
 
 def test_a_run_records_the_cpu_and_the_mode_as_tags(tmp_path, monkeypatch):
