@@ -1753,3 +1753,61 @@ def test_the_plasticity_study_weight_norm_test_on_a_hand_made_table(tmp_path):
     assert low < 0 <= high and got.loc["weak", "Verdict"] == "not confirmed"
     assert "[" not in got.loc["few", "ρ [95% CI]"] and got.loc["few", "Verdict"] == "not confirmed"
     assert got.loc["flip", "Verdict"] == "post hoc (suggested the test)"
+
+
+def _tick_label_boxes(ax):
+    """The window extents of the x tick labels that are drawn (major and minor, non-empty text)."""
+    ax.figure.canvas.draw()
+    renderer = ax.figure.canvas.get_renderer()
+    ticks = ax.xaxis.get_major_ticks() + ax.xaxis.get_minor_ticks()
+    lo, hi = ax.get_xlim()
+    return [t.label1.get_window_extent(renderer) for t in ticks
+            if t.label1.get_visible() and t.label1.get_text() and lo <= t.get_loc() <= hi]
+
+
+@pytest.mark.parametrize("span", [(0.013, 0.11), (0.006, 0.09), (0.02, 0.06), (0.006, 0.5), (0.011, 0.25), (0.021, 0.048), (0.06, 0.095), (0.03, 0.058), (0.03, 0.07), (1e-4, 1e-1), (1e-6, 10.0)])
+def test_log_axis_labels_do_not_overlap(span):
+    """A log-scale reading (the probe loss) spanning less than a decade: matplotlib's default labels its minor ticks
+    in scientific notation, which overlap in a readings panel; figures.log_axis labels 1, 2, 5 per decade plainly."""
+    from matplotlib import pyplot as plt
+    from matplotlib.transforms import Bbox
+
+    fig, ax = plt.subplots(figsize=(style.PAGE_WIDTH / 3 - 0.3, 2.0))   # a panel of three, less its y labels
+    ax.scatter(list(span), [0, 1])
+    figures.log_axis(ax.xaxis)
+    boxes = _tick_label_boxes(ax)
+    labels = [t.label1.get_text() for t in ax.xaxis.get_major_ticks() if t.label1.get_text()]
+    plt.close(fig)
+    assert len(boxes) >= 2, labels
+    assert not any(Bbox.intersection(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1:]), labels
+    assert all(re.fullmatch(r"[0-9.e-]+", text) for text in labels), labels   # plain numbers, no mathtext
+
+
+def test_segment_scores_difference_row_shows_every_column(tmp_path, monkeypatch):
+    """The difference row is shared across the changes; its limits are set once every column is drawn, so a change
+    whose differences reach further than the first column's (here +100 points under the payload, at most +37.5 under
+    the flip) is not cut off at the first column's limits."""
+    limits, save = {}, figures.save
+
+    def spy(fig, out, stem):
+        if stem == "segment_scores":
+            for ax in fig.axes:
+                ys = [y for line in ax.get_lines() for y in np.asarray(line.get_ydata(), float)]
+                ys += [y for coll in ax.collections for seg in coll.get_segments() for y in np.asarray(seg)[:, 1]]
+                limits[(ax.get_subplotspec().rowspan.start, ax.get_subplotspec().colspan.start)] = (
+                    ax.get_ylim(), np.nanmin(ys), np.nanmax(ys))
+        return save(fig, out, stem)
+
+    monkeypatch.setattr(figures, "save", spy)
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    log_segment_runs(client, "two", [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()])
+    far = {"reset_all": [[0.0] * 4] * 3, "ppo": [[1.0] * 4] * 3}
+    log_segment_runs(client, "two", [(agent, segs, [], "current") for agent, segs in far.items()],
+                     wind="none", vehicle="payload")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "two")
+    assert code == 0, stdout + stderr
+    assert {key[0] for key in limits} == {0, 1} and {key[1] for key in limits} == {0, 1}, limits
+    for key, ((low, high), drawn_low, drawn_high) in limits.items():
+        assert low <= drawn_low and drawn_high <= high, (key, low, high, drawn_low, drawn_high)
+    assert limits[(1, 1)][2] == pytest.approx(100.0)

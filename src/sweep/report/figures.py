@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from matplotlib import pyplot as plt
 from matplotlib.lines import Line2D
-from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from sweep import metrics
 from sweep.metrics import Curve
@@ -284,13 +284,13 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
         axes[0, col].set_title(style.arm_title(wind), fontsize="small")
         if has_diff:
             axes[1, col].axhline(0.0, color="0.4", lw=0.8, ls=":")
-            low, high = axes[1, col].get_ylim()   # a difference of two shares lies in [-100, 100] points
-            axes[1, col].set_ylim(max(low, -103), min(high, 103))
         axes[-1, col].set_xlabel("Segment (each wind.segment_steps)")
         axes[-1, col].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[0, 0].set_ylabel(y_label)
     axes[0, 0].set_ylim(-3, 103)
-    if has_diff:
+    if has_diff:   # once every column is drawn: set on the first, the shared row's limits would stop at its data
+        low, high = axes[1, 0].get_ylim()   # a difference of two shares lies in [-100, 100] points
+        axes[1, 0].set_ylim(max(low, -103), min(high, 103))
         axes[1, 0].set_ylabel(diff_label or f"{diff_name} vs {reference}\n(points)")
     fig.suptitle(textwrap.fill("Learning per segment: mean over " + (runs_shown or "seeds") + ", bars 95% CI",
                                70 * len(winds)), fontsize="small")
@@ -300,6 +300,22 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
     fig.legend(handles=ordered, fontsize="x-small", ncol=2 * len(winds), frameon=False, loc="outside lower center",
                title=note, title_fontsize="xx-small")
     return save(fig, out, name)
+
+
+def log_axis(axis) -> None:
+    """A log scale labelled as plain numbers (0.02, 0.05, 0.1), minor ticks unlabelled. The labels sit at 1-9 of each
+    decade when the drawn data span less than 0.3 decades, at 1, 2, 3, 5 below 0.6, at 1, 2, 5 below one, at 1, 3
+    below two, at the decades otherwise. Call it after drawing. Matplotlib's default labels the minor ticks of an axis
+    spanning less than a decade in scientific notation, and those labels overlap (the payload's probe panels,
+    0.013-0.11)."""
+    lo, hi = axis.get_data_interval()
+    axis.axes.set_xscale("log") if axis.axis_name == "x" else axis.axes.set_yscale("log")
+    decades = np.log10(hi / lo) if lo > 0 and np.isfinite(hi) else np.inf
+    subs = next(s for most, s in ((0.3, range(1, 10)), (0.6, (1, 2, 3, 5)), (1, (1, 2, 5)), (2, (1, 3)),
+                                  (np.inf, (1,))) if decades < most)   # 2 to 6 labels, none crowded
+    axis.set_major_locator(LogLocator(base=10, subs=[float(s) for s in subs]))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds, shown, out: Path) -> list[Path]:
@@ -334,7 +350,7 @@ def readings_scatter(per_run: pd.DataFrame, readings: dict, titles: dict, conds,
                     handles.setdefault(cond, Line2D([], [], color=colour, marker="o", lw=0, ms=4,
                                                     label=conds.series(cond)))
             if log:
-                ax.set_xscale("log")
+                log_axis(ax.xaxis)
             ax.set_xlabel(axis, fontsize="small")
             ax.set_title(titles.get((wind, column), ""), fontsize="x-small")
         for ax in axes.flat[len(present):]:
