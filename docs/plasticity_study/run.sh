@@ -98,7 +98,8 @@ case ${1:-} in
                  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity ${change:+"--sweep=-$change"} \
                     --highlight reset_all --vs "$VERSUS" --out "$out")
                  "$PY" "$ROOT/docs/plasticity_study/decline.py" "$out" > "$out/decline.md"   # the early-vs-late test
-                 "$PY" "$ROOT/docs/plasticity_study/weight_norm.py" "$out" > "$out/weight_norm.md" ;;   # fixed 12-05
+                 "$PY" "$ROOT/docs/plasticity_study/weight_norm.py" "$out" > "$out/weight_norm.md"   # fixed 12-05
+                 "$PY" "$ROOT/docs/plasticity_study/hovered.py" "$out" > "$out/hovered.md" ;;   # seeds hovering per segment
   pilot-report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment plasticity-pilot --highlight reset_all \
                     --vs "$CONTROLS" --out "$ROOT/docs/plasticity_study/pilot") ;;
   export)        for exp in plasticity-pilot plasticity; do
