@@ -1811,3 +1811,20 @@ def test_segment_scores_difference_row_shows_every_column(tmp_path, monkeypatch)
     for key, ((low, high), drawn_low, drawn_high) in limits.items():
         assert low <= drawn_low and drawn_high <= high, (key, low, high, drawn_low, drawn_high)
     assert limits[(1, 1)][2] == pytest.approx(100.0)
+
+
+def test_log_axis_labels_a_y_axis_spanning_less_than_a_decade():
+    """The probe curves' log y axes (figures._panel) go through figures.log_axis too: a panel spanning 0.2-0.9 gets
+    at least two plain labels, not a lone decade label or none."""
+    from matplotlib import pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(3.0, 1.6))
+    ax.plot([0, 1], [0.2, 0.9])
+    figures.log_axis(ax.yaxis)
+    fig.canvas.draw()
+    low, high = ax.get_ylim()
+    labels = [t.label1.get_text() for t in ax.yaxis.get_major_ticks()
+              if t.label1.get_text() and low <= t.get_loc() <= high]
+    plt.close(fig)
+    assert ax.get_yscale() == "log" and len(labels) >= 2, labels
+    assert all(re.fullmatch(r"[0-9.e-]+", text) for text in labels), labels

@@ -457,8 +457,7 @@ def _panel(ax, curve: Curve, hist: pd.DataFrame, sub: pd.DataFrame, conds, highl
                 linewidth=1.2, marker="o" if len(grid) == 1 or curve.sparse else None)
         seeds[cond] = len(matrix)
     if curve.logy:
-        ax.set_yscale("log")
-        ax.yaxis.set_minor_formatter(NullFormatter())  # decade labels only: narrow and legible
+        log_axis(ax.yaxis)
     if curve.percent:  # from just below 0: a curve at 0 shows above the axis line
         top = max(1.0, ax.get_ylim()[1])
         ax.set_ylim(-0.03 * top, top)
