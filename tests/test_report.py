@@ -1755,28 +1755,31 @@ def test_the_plasticity_study_weight_norm_test_on_a_hand_made_table(tmp_path):
     assert got.loc["flip", "Verdict"] == "post hoc (suggested the test)"
 
 
-def _tick_label_boxes(ax):
-    """The window extents of the x tick labels that are drawn (major and minor, non-empty text)."""
-    ax.figure.canvas.draw()
-    renderer = ax.figure.canvas.get_renderer()
-    ticks = ax.xaxis.get_major_ticks() + ax.xaxis.get_minor_ticks()
-    lo, hi = ax.get_xlim()
-    return [t.label1.get_window_extent(renderer) for t in ticks
-            if t.label1.get_visible() and t.label1.get_text() and lo <= t.get_loc() <= hi]
+def _drawn_tick_labels(axis) -> tuple[list[str], list]:
+    """The texts and window extents of an axis' tick labels that are drawn (major and minor, non-empty, inside the
+    axis' limits)."""
+    axis.figure.canvas.draw()
+    renderer = axis.figure.canvas.get_renderer()
+    low, high = axis.get_view_interval()
+    drawn = [t.label1 for t in axis.get_major_ticks() + axis.get_minor_ticks()
+             if t.label1.get_visible() and t.label1.get_text() and min(low, high) <= t.get_loc() <= max(low, high)]
+    return [label.get_text() for label in drawn], [label.get_window_extent(renderer) for label in drawn]
 
 
-@pytest.mark.parametrize("span", [(0.013, 0.11), (0.006, 0.09), (0.02, 0.06), (0.006, 0.5), (0.011, 0.25), (0.021, 0.048), (0.06, 0.095), (0.03, 0.058), (0.03, 0.07), (1e-4, 1e-1), (1e-6, 10.0)])
+@pytest.mark.parametrize("span", [(0.013, 0.11), (0.006, 0.09), (0.02, 0.06), (0.006, 0.5), (0.011, 0.25),
+                                  (0.021, 0.048), (0.06, 0.095), (0.03, 0.058), (0.03, 0.07), (1e-4, 1e-1),
+                                  (1e-6, 10.0)])
 def test_log_axis_labels_do_not_overlap(span):
     """A log-scale reading (the probe loss) spanning less than a decade: matplotlib's default labels its minor ticks
-    in scientific notation, which overlap in a readings panel; figures.log_axis labels 1, 2, 5 per decade plainly."""
+    in scientific notation, which overlap in a readings panel; figures.log_axis labels plain numbers, spaced by the
+    data's span."""
     from matplotlib import pyplot as plt
     from matplotlib.transforms import Bbox
 
     fig, ax = plt.subplots(figsize=(style.PAGE_WIDTH / 3 - 0.3, 2.0))   # a panel of three, less its y labels
     ax.scatter(list(span), [0, 1])
     figures.log_axis(ax.xaxis)
-    boxes = _tick_label_boxes(ax)
-    labels = [t.label1.get_text() for t in ax.xaxis.get_major_ticks() if t.label1.get_text()]
+    labels, boxes = _drawn_tick_labels(ax.xaxis)
     plt.close(fig)
     assert len(boxes) >= 2, labels
     assert not any(Bbox.intersection(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1:]), labels
@@ -1821,10 +1824,7 @@ def test_log_axis_labels_a_y_axis_spanning_less_than_a_decade():
     fig, ax = plt.subplots(figsize=(3.0, 1.6))
     ax.plot([0, 1], [0.2, 0.9])
     figures.log_axis(ax.yaxis)
-    fig.canvas.draw()
-    low, high = ax.get_ylim()
-    labels = [t.label1.get_text() for t in ax.yaxis.get_major_ticks()
-              if t.label1.get_text() and low <= t.get_loc() <= high]
+    labels, _ = _drawn_tick_labels(ax.yaxis)
     plt.close(fig)
     assert ax.get_yscale() == "log" and len(labels) >= 2, labels
     assert all(re.fullmatch(r"[0-9.e-]+", text) for text in labels), labels

@@ -309,7 +309,10 @@ def log_axis(axis) -> None:
     spanning less than a decade in scientific notation, and those labels overlap (the payload's probe panels,
     0.013-0.11)."""
     lo, hi = axis.get_data_interval()
-    axis.axes.set_xscale("log") if axis.axis_name == "x" else axis.axes.set_yscale("log")
+    if axis.axis_name == "x":
+        axis.axes.set_xscale("log")
+    else:
+        axis.axes.set_yscale("log")
     decades = np.log10(hi / lo) if lo > 0 and np.isfinite(hi) else np.inf
     subs = next(s for most, s in ((0.3, range(1, 10)), (0.6, (1, 2, 3, 5)), (1, (1, 2, 5)), (2, (1, 3)),
                                   (np.inf, (1,))) if decades < most)   # 2 to 6 labels, none crowded
