@@ -3,9 +3,9 @@
 Per change, agent and segment, from the report's segment_runs.csv: the seeds with an evaluation at >= 50% success
 within the segment (the report's "hover", column hover_after set), over every seed and over the seeds that learned
 segment 0 (the report's own flag, relearning_runs.csv's learned_first). A mean AUC mixes how many seeds hover with
-how well; outcomes on the hover task are bimodal per seed, so the count says which. Added on 12-06 after the payload change's tables were read (a reading, not a test). Only runs
-evaluated under the condition being learned (eval.condition=current). Run from the repo root on a report folder
-(run.sh report writes it next to decline.md):
+how well; outcomes on the hover task are bimodal per seed, so the count says which. Added on 12-06 after the payload
+change's tables were read (a reading, not a test). Only runs evaluated under the condition being learned
+(eval.condition=current). Run from the repo root on a report folder (run.sh report writes it next to decline.md):
 
     .venv/bin/python docs/plasticity_study/hovered.py docs/plasticity_study/payload
 """
