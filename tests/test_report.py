@@ -831,8 +831,8 @@ def test_without_by_conditions_are_agents_and_look_as_before(plain_report):
     looks = style.looks({"PPO": "ppo", "L2 + PPO": "l2", "RECOM + L2 PPO": "recom_l2", "mine": "mine"})
     assert looks["PPO"] == (style.AGENT_COLOURS["ppo"], "-")
     assert looks["RECOM + L2 PPO"][0] == style.AGENT_COLOURS["recom_l2"]
-    free = [c for c in style.PALETTE if c not in {style.AGENT_COLOURS[a] for a in ("ppo", "l2", "recom_l2")}]
-    assert looks["mine"] == (free[0], style.OTHER_DASH)  # an agent of no fixed colour: the first one not in use
+    # an agent of no fixed colour: the one its name picks, whatever else the report holds
+    assert looks["mine"] == (style.agent_colour("mine"), style.OTHER_DASH) == style.looks({"m": "mine"})["m"]
 
 
 def test_every_condition_looks_different():
@@ -914,7 +914,7 @@ def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, mo
         assert not drawn[f"{stem}:grey"] and "Grey" not in drawn[f"{stem}:note"]
         for text, colour, dash in drawn[stem]:
             assert look.setdefault(text, (colour, dash)) == (colour, dash), (stem, text)  # the same look as before
-    # no agent of a fixed colour here: twelve of the palette's fourteen colours, one each
+    # no agent of a fixed colour here: twelve colours derived from their names, one each
     assert len({colour for colour, _ in look.values()}) == len(look) == 12, look
 
 
@@ -1200,7 +1200,8 @@ def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):
 
 # -- figures for many agents and arms (issue 34) ---------------------------------------------------------------
 
-ARM_AGENTS = [a for a in style.AGENT_COLOURS if a != "reset_all"][:12]  # twelve agents of conf/agent
+# twelve agents of fixed colour (not conf/agent/: adding a YAML there changes nothing here); PPO is agent 0
+ARM_AGENTS = [a for a in style.AGENT_COLOURS if a != "reset_all"][:12]
 
 
 def log_arms(client: MlflowClient, experiment: str) -> None:
@@ -1330,30 +1331,54 @@ def test_interval_rows_are_drawn_as_rliable_draws_them():
     plt.close("all")
 
 
-def test_the_palette_keeps_fourteen_agents_apart_for_colour_blind_readers():
-    """Every pair of style.PALETTE differs by at least style.MIN_DELTA_E (CIE76 ΔE in CIELAB, D65) for normal
-    vision and as seen with deuteranopia and protanopia (Machado et al. 2009, severity 1); grey stands apart."""
-    machado = {"normal": np.eye(3),
-               "deuteranopia": np.array([[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413],
-                                         [-0.011820, 0.042940, 0.968881]]),
-               "protanopia": np.array([[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216],
-                                       [-0.003882, -0.048116, 1.051998]])}
-    xyz = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
+NEW_AGENTS = ["weight_clip", "sac", "td3", "layer_norm_fresh"]  # agents of no fixed colour (none of conf/agent yet)
 
-    def lab(hex_colour: str, vision: np.ndarray) -> np.ndarray:
-        srgb = np.array([int(hex_colour[i:i + 2], 16) / 255 for i in (1, 3, 5)])
-        linear = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-        x = xyz @ np.clip(vision @ linear, 0, 1) / np.array([0.95047, 1.0, 1.08883])
-        f = np.where(x > 0.008856, np.cbrt(x), 7.787 * x + 16 / 116)
-        return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
 
-    agents = {path.stem for path in (ROOT / "conf" / "agent").glob("*.yaml")}  # every agent a user can pick
-    assert len(set(style.PALETTE)) == len(style.PALETTE) == 14 and agents <= set(style.AGENT_COLOURS), agents
-    for name, vision in machado.items():
-        points = [lab(c, vision) for c in style.PALETTE]
-        closest = min(np.linalg.norm(a - b) for i, a in enumerate(points) for b in points[i + 1:])
-        assert closest >= style.MIN_DELTA_E, (name, closest)
-        assert min(np.linalg.norm(lab(style.GREY, vision) - p) for p in points) >= 10, name
+def test_every_agent_has_a_colour_apart_from_the_others_for_colour_blind_readers():
+    """Every agent of conf/agent/ (and reset_all), plus new ones, gets its colour from style.agent_colours (what the
+    report's looks use): the named keep AGENT_COLOURS, any two differ by at least style.MIN_DELTA_E where both are
+    named and style.DERIVED_MIN_DELTA_E otherwise (CIE76 ΔE in CIELAB, D65, for normal vision and as seen with
+    deuteranopia and protanopia, Machado et al. 2009, severity 1); grey stands apart. Nothing here is counted."""
+    assert style.lab("#FFFFFF") == pytest.approx([100.0, 0.0, 0.0], abs=0.05)
+    assert style.lab("#FF0000") == pytest.approx([53.24, 80.09, 67.20], abs=0.05)  # sRGB red, D65
+    assert style.lab("#FF0000", "protanopia")[0] < 45 < style.lab("#FF0000")[0]  # red looks darker to a protanope
+    agents = sorted({path.stem for path in (ROOT / "conf" / "agent").glob("*.yaml")} | {"reset_all", *NEW_AGENTS})
+    colour = style.agent_colours(agents)
+    assert colour == {a: look[0] for a, look in style.looks(dict(zip(agents, agents))).items()}
+    assert {a: colour[a] for a in agents if a in style.AGENT_COLOURS} == {
+        a: c for a, c in style.AGENT_COLOURS.items() if a in agents}   # the published colours, unchanged
+    named = [*style.PALETTE, style.GREY]
+    for a, b in [(a, b) for i, a in enumerate(agents) for b in agents[i + 1:]]:
+        both = a in style.AGENT_COLOURS and b in style.AGENT_COLOURS
+        assert style.delta_e(colour[a], colour[b]) >= (style.MIN_DELTA_E if both else style.DERIVED_MIN_DELTA_E), (a, b)
+    assert min(style.delta_e(c, style.GREY) for c in colour.values()) >= 10
+    # the whole set a new agent picks from: apart from every named colour, grey and each other
+    for i, c in enumerate(style.DERIVED):
+        assert min(style.delta_e(c, other) for other in named + style.DERIVED[i + 1:]) >= style.DERIVED_MIN_DELTA_E, c
+
+
+def test_a_new_agents_colour_comes_from_its_name_and_stays_apart_from_the_reports_agents():
+    """A new agent's colour is the one its name picks, in every report (alone, beside the paper's agents, beside
+    all of conf/agent); of two new agents whose names pick the same colour the later by name takes the next free
+    one; more new agents than derived colours still give every series a look of its own."""
+    paper = list(style.KNOWN)
+    every = sorted(path.stem for path in (ROOT / "conf" / "agent").glob("*.yaml"))
+    for agent in NEW_AGENTS:
+        own = style.agent_colour(agent)
+        assert own in style.DERIVED and own not in style.PALETTE
+        for others in ([], paper, every):
+            assert style.agent_colours([*others, agent])[agent] == own, (agent, others)
+        assert style.looks({"x": "ppo", "mine": agent})["mine"] == (own, style.OTHER_DASH)
+    # a name that picks weight_clip's colour: the earlier name keeps its own, the later steps on
+    twin = next(name for name in (f"agent_{i}" for i in range(10_000))
+                if style.agent_colour(name) == style.agent_colour("weight_clip"))
+    got = style.agent_colours(["weight_clip", "ppo", twin])
+    assert got[twin] == style.agent_colour(twin) and got["weight_clip"] in set(style.DERIVED) - {got[twin]}
+    assert style.delta_e(got["weight_clip"], got[twin]) >= style.DERIVED_MIN_DELTA_E
+    assert got == style.agent_colours([twin, "weight_clip", "ppo"])   # whatever the display order
+    crowd = {f"new_{i}": f"new_{i}" for i in range(len(style.DERIVED) + 5)} | {"PPO": "ppo"}
+    looks = style.looks(crowd)
+    assert len(set(looks.values())) == len(crowd) and looks["PPO"] == (style.AGENT_COLOURS["ppo"], "-")
 
 
 def test_tables_say_when_runs_come_from_different_cpus_or_float_modes(tmp_path):
