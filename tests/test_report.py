@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import re
 import subprocess
@@ -379,9 +380,10 @@ def test_report_writes_every_file_and_says_what_is_missing(store, report):
     for name in TABLES:
         assert (out / name).stat().st_size > 0, name
     assert stdout.strip().splitlines()[-1] == str(out.resolve())
-    assert "missing: agent=l2 wind=paper" in stdout and "missing: agent=ppo wind=none" in stdout
+    # every job of the sweep finished: nothing is missing (the paper's L2 and wind none were never asked for)
+    assert "missing: agent=" not in stdout
     # PPO ran once per L2 coefficient, but L2 is off in PPO: the same condition, the older runs left out
-    assert "2 older duplicate run(s) of the same agent/agent.l2.coef/wind/seed left out" in stdout
+    assert "2 older duplicate run(s) of the same agent/agent.l2.coef/learner/wind/seed left out" in stdout
 
 
 def test_curve_figures_exist_exactly_when_their_data_exist(store, hand_report):
@@ -826,7 +828,7 @@ def test_without_by_conditions_are_agents_and_look_as_before(plain_report):
     summary = pd.read_csv(out / "summary.csv")
     assert list(summary["agent"]) == ["ppo", "recom_l2"] and (summary["n_seeds"] == 2).all()
     assert "condition" not in summary and "delta_iqm" not in summary
-    assert "4 older duplicate run(s) of the same agent/wind/seed left out" in stdout
+    assert "4 older duplicate run(s) of the same agent/learner/wind/seed left out" in stdout
     assert "| PPO | paper |" in (out / "summary.md").read_text() and "coef=" not in (out / "table3.md").read_text()
     looks = style.looks({"PPO": "ppo", "L2 + PPO": "l2", "RECOM + L2 PPO": "recom_l2", "mine": "mine"})
     assert looks["PPO"] == (style.AGENT_COLOURS["ppo"], "-")
@@ -1196,6 +1198,88 @@ def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):
     code, _, stderr = run_report(uri, tmp_path / "bad", "--experiment", "pick", "--agents", "l2,nope")
     lines = stderr.strip().splitlines()
     assert code == 1 and len(lines) == 1 and "--agents nope: no finished runs" in lines[0] and "l2, ppo" in lines[0]
+
+
+def log_cells(client: MlflowClient, experiment: str, cells, sweep: str = "hand") -> dict[tuple, str]:
+    """Runs of ``experiment``, one per (agent, seed, learner tag or None, status, final reward), in this order
+    (later = newer), wind paper, reward history 0..1000 ending at the final reward; -> (agent, seed, learner,
+    status) -> run id."""
+    exp_id = client.create_experiment(experiment)
+    ids = {}
+    for i, (agent, seed, learner, status, reward) in enumerate(cells):
+        tags = {"agent": agent, "wind": "paper", "seed": str(seed), "run_name": f"{agent}-{learner}-s{seed}",
+                "sweep": sweep} | ({"learner": learner} if learner else {})
+        run_id = client.create_run(exp_id, tags=tags, start_time=1000 * (i + 1)).info.run_id
+        client.log_batch(run_id, metrics=[Metric("rollout/ep_rew_mean", reward * s / 1000, 0, s)
+                                          for s in (0, 500, 1000)],
+                         params=[Param("agent.learner", learner)] if learner else [])
+        client.set_terminated(run_id, status)
+        ids[(agent, seed, learner, status)] = run_id
+    return ids
+
+
+def test_runs_of_two_learners_are_two_conditions(tmp_path):
+    """PPO on SB3 (one run from before the learner tag: SB3) and on JAX, two seeds each, and L2 on SB3: the
+    duplicate filter keeps every learner's run (only the older SB3 run of seed 0 goes), and the report splits the
+    learners as --by agent.learner would, saying so."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    log_cells(client, "learners", [("ppo", 0, "sb3", "FINISHED", -500.0), ("ppo", 0, None, "FINISHED", -100.0),
+                                   ("ppo", 1, "sb3", "FINISHED", -120.0), ("ppo", 0, "jax", "FINISHED", -300.0),
+                                   ("ppo", 1, "jax", "FINISHED", -320.0), ("l2", 0, "sb3", "FINISHED", -50.0),
+                                   ("l2", 1, "sb3", "FINISHED", -60.0)])
+    loaded = load.read_runs(client, client.get_experiment_by_name("learners").experiment_id)
+    assert sorted(zip(loaded.runs["agent"], loaded.runs["learner"], loaded.runs["seed"])) == [
+        ("l2", "sb3", 0), ("l2", "sb3", 1), ("ppo", "jax", 0), ("ppo", "jax", 1), ("ppo", "sb3", 0), ("ppo", "sb3", 1)]
+    assert loaded.notes == ["1 older duplicate run(s) of the same agent/learner/wind/seed left out "
+                            "(use --sweep to pick one sweep)"] and loaded.asked.empty
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "learners")
+    assert code == 0, stdout + stderr
+    assert "runs of ppo come from several learners (jax, sb3): kept apart as with --by agent.learner" in stdout
+    summary = pd.read_csv(tmp_path / "out" / "summary.csv").set_index("condition")
+    assert set(summary.index) == {"PPO (learner=jax)", "PPO (learner=sb3)", "L2 + PPO (learner=sb3)"}
+    assert (summary["n_seeds"] == 2).all()
+    # the SB3 seed 0 kept is the newer run (-100), not the older -500; JAX's mean is its own
+    assert summary.loc["PPO (learner=sb3)", "final_reward"] == pytest.approx(-110.0)
+    assert summary.loc["PPO (learner=jax)", "final_reward"] == pytest.approx(-310.0)
+    # one learner per agent: nothing to split
+    code, stdout, _ = run_report(uri, tmp_path / "sb3", "--experiment", "learners", "--agents", "l2")
+    assert code == 0 and "several learners" not in stdout
+    assert list(pd.read_csv(tmp_path / "sb3" / "summary.csv")["agent"]) == ["l2"]
+
+
+def test_missing_lines_name_only_what_a_sweep_asked_for(tmp_path):
+    """Missing lines name a cell whose run failed without a finished run of the same agent/wind/seed/learner, and
+    a multirun job that ended INVALID before its run existed; not a failed run that was run again, not a job of
+    another experiment, and not the paper's agents or winds nobody ran."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    client = MlflowClient(uri)
+    sweep = tmp_path / "multirun"
+    ids = log_cells(client, "asked", [("ppo", 0, "sb3", "FINISHED", -100.0), ("ppo", 1, "sb3", "FAILED", -900.0),
+                                      ("ppo", 1, "sb3", "FINISHED", -110.0), ("l2", 0, "sb3", "FINISHED", -50.0),
+                                      ("l2", 1, "sb3", "FAILED", -900.0), ("l2", 1, "jax", "KILLED", -900.0)],
+                    sweep=str(sweep))
+    jobs = {"0": ("FINISHED", {"run_id": ids[("ppo", 0, "sb3", "FINISHED")]}, "asked"),
+            "1": ("INVALID", {"reason": "agent.weight_clip.kappa=-1: must be > 0"}, "asked"),
+            "2": ("INVALID", {"reason": "some other study"}, "elsewhere"),
+            "3": ("FAILED", {"run_id": ids[("l2", 1, "sb3", "FAILED")], "reason": "RuntimeError: boom"}, "asked")}
+    for job, (status, fields, experiment) in jobs.items():
+        (sweep / job / ".hydra").mkdir(parents=True)
+        (sweep / job / ".hydra" / "config.yaml").write_text(
+            f"seed: 0\nagent:\n  name: weight_clip\n  learner: sb3\nwind:\n  name: paper\n"
+            f"vehicle:\n  name: nominal\ntracking:\n  experiment: {experiment}\n")
+        (sweep / job / "status.json").write_text(json.dumps({"status": status, **fields}))
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "asked")
+    assert code == 0, stdout + stderr
+    missing = [line.removeprefix("sweep.report: missing: ") for line in stdout.splitlines()
+               if line.startswith("sweep.report: missing: agent=")]
+    assert missing == ["agent=l2 wind=paper learner=jax seed=1 (no finished run: run l2-jax-s1 KILLED)",
+                       "agent=l2 wind=paper learner=sb3 seed=1 (no finished run: run l2-sb3-s1 FAILED)",
+                       f"agent=weight_clip wind=paper learner=sb3 seed=0 (no finished run: job 1 of {sweep} "
+                       "INVALID: agent.weight_clip.kappa=-1: must be > 0)"], missing
+    assert "recom_l2" not in stdout and "wind=none" not in stdout   # the paper's design is not asked for here
+    code, stdout, _ = run_report(uri, tmp_path / "l2", "--experiment", "asked", "--agents", "ppo")
+    assert code == 0 and "missing: agent=" not in stdout           # PPO's failed seed 1 ran again and finished
 
 
 # -- figures for many agents and arms (issue 34) ---------------------------------------------------------------

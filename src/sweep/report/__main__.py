@@ -43,9 +43,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     try:
         client = load.client_for(uri)
         exp_id, exp_name = load.pick_experiment(client, experiment)
-        runs, notes = load.load_runs(client, exp_id, sweep, by)
+        loaded = load.read_runs(client, exp_id, sweep, by, exp_name)
     except MlflowException as err:
         raise load.ReportError(f"cannot read the MLflow store {uri}: {str(err).splitlines()[0]}") from err
+    runs, notes = loaded.runs, loaded.notes
     for note in notes:
         print(f"sweep.report: note: {note}")
     if runs.empty:
@@ -65,7 +66,10 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
                                    f"{', '.join(sorted(set(runs['agent'])))}")
     if top < 1:
         raise load.ReportError(f"--top {top}: must be at least 1 (the conditions of each panel drawn in colour)")
-    runs, conds = conditions.build(runs, list(by))
+    runs, by, split = load.split_learners(runs, list(by))
+    if split:
+        print(f"sweep.report: note: {split}")
+    runs, conds = conditions.build(runs, by)
     base = conditions.parse_baseline(baseline, conds) if baseline is not None else None
 
     out_dir = Path(out) if out else Path("reports") / exp_name
@@ -74,7 +78,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     made = tables.provenance(runs)
     if made:
         print("sweep.report: " + made.strip())
-    for missing in ([] if agents else missing_conditions(runs)):
+    for missing in missing_conditions(loaded.asked, agents):
         print(f"sweep.report: missing: {missing}")
 
     histories = load.load_histories(client, runs)
@@ -134,18 +138,22 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     return out_dir.resolve()
 
 
-def missing_conditions(runs) -> list[str]:
-    """Agent x wind cells without any run: of the agents and winds present, and, in an experiment with the paper's
-    winds (paper, none), of the paper's design (its three agents under both). A study of other changes only (the
-    plasticity study's flip and payload) is not asked for the paper's cells."""
-    from sweep.report.style import KNOWN, ordered
+def missing_conditions(asked, agents=()) -> list[str]:
+    """One line per cell a sweep asked for without a finished run (``load.read_runs``: a run that did not finish,
+    a multirun job that failed before its run existed), grouped over seeds; of ``agents`` only if given. Agents
+    nobody ran are not named: the report does not guess a design."""
+    from sweep.report.load import CELL, NA
 
-    paper = {"paper", "none"}
-    design = bool(paper & set(runs["wind"]))
-    agents = ordered(set(runs["agent"]) | (set(KNOWN) if design else set()))
-    winds = sorted(set(runs["wind"]) | (paper if design else set()))
-    present = set(zip(runs["agent"], runs["wind"]))
-    return [f"agent={a} wind={w} (no finished runs)" for w in winds for a in agents if (a, w) not in present]
+    if agents:
+        asked = asked[asked["agent"].isin(agents)]
+    by = [c for c in asked.columns if c not in (*CELL, "what")]
+    lines = []
+    for cell, group in asked.groupby(["agent", *by, "wind", "learner"], sort=True):
+        values = dict(zip(["agent", *by, "wind", "learner"], cell))
+        text = " ".join(f"{k}={v}" for k, v in values.items() if v != NA)
+        seeds = ",".join(str(s) for s in sorted(group["seed"]))
+        lines.append(f"{text} seed={seeds} (no finished run: {'; '.join(group.sort_values('seed')['what'])})")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

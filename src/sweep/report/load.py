@@ -1,9 +1,12 @@
 """Read one experiment of the MLflow store back into pandas (the only module that reads the store).
 
-* ``runs``: one row per FINISHED run: run_id, agent, its legend label, wind, seed, sweep, the wind schedule and
+* ``runs``: one row per FINISHED run: run_id, agent, its legend label, learner, wind, seed, sweep, the wind schedule and
   eval params, the end-of-run evaluations (metrics.EVAL_KEYS: the final policy's ``eval/*``, the best kept policies'
   ``eval_best/*`` and ``eval_best_eval/*``; NaN where the run did not evaluate that policy), the names of its
-  metrics (``logged``) and one column per ``--by`` param.
+  metrics (``logged``) and one column per ``--by`` param. Of several runs of one agent, learner, ``--by`` values,
+  wind and seed only the newest is kept.
+* ``asked``: what the sweeps asked for and did not get (``read_runs``): runs that did not finish and jobs of a
+  Hydra multirun that failed before their run existed, without a finished run of the same cell.
 * ``histories``: long table (run_id, key, step, value) of the metric histories the report plots.
 * ``trajectories``: the ``eval_trajectories.npz`` artifact of one run (or a best policy's, ``eval_best_…``).
 """
@@ -13,6 +16,7 @@ import difflib
 import json
 import os
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +28,12 @@ from mlflow.exceptions import MlflowException  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from sweep import metrics  # noqa: E402
+from sweep.status import read_status  # noqa: E402
 
 # What a run logged and the report reads: sweep.metrics (one registry of keys, labels, figures and tables).
 NA = "n/a"  # value of a --by param that does not apply to a run (or that the run did not log)
+LEARNER = "agent.learner"  # the param naming a run's learner (conf/learner/); its tag is ``learner``
+OLD_LEARNER = "sb3"        # the learner of runs logged before agent.learner existed (SB3 was the only one)
 # Labels of the paper's agents in stores logged before an agent's YAML had a `label:` (tag agent_label).
 OLD_LABELS = {"ppo": "PPO", "l2": "L2 + PPO", "recom_l2": "RECOM + L2 PPO"}
 PARAM_KEYS = {"wind.segment_steps": "segment_steps", "wind.speeds": "speeds", "wind.directions": "directions",
@@ -132,24 +139,54 @@ def matches_sweep(tag: str, sweep: str | None) -> bool:
     return sweep in tag
 
 
-def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
-              by: list[str] = ()) -> tuple[pd.DataFrame, list[str]]:
-    """(finished runs as a DataFrame, notes about runs left out). Of several runs of one agent, ``by`` values,
-    wind and seed only the one that started last is kept."""
-    rows, notes, available = [], [], set()
+def learner_of(tags: dict[str, str], params: dict[str, str]) -> str:
+    """The run's learner: its tag ``learner``, else its param agent.learner, else (older stores) OLD_LEARNER."""
+    return tags.get("learner") or params.get(LEARNER) or OLD_LEARNER
+
+
+@dataclass
+class Loaded:
+    """What ``read_runs`` read: ``runs`` (the finished runs, one per cell), ``notes`` about runs left out, and
+    ``asked``: one row per cell that a sweep asked for and that has no finished run (columns CELL, the --by
+    keys, ``what``: the run or job that did not finish and how it ended)."""
+    runs: pd.DataFrame
+    notes: list[str]
+    asked: pd.DataFrame = field(default_factory=pd.DataFrame)
+
+
+CELL = ["agent", "learner", "wind", "seed"]  # with the --by values: what the report keeps one run of
+
+
+def read_runs(client: MlflowClient, exp_id: str, sweep: str | None = None, by: list[str] = (),
+              experiment: str | None = None) -> Loaded:
+    """The experiment's runs (those of ``sweep`` if given). Of several finished runs of one cell (agent, learner,
+    ``by`` values, wind, seed) only the one that started last is kept: runs of two learners are two cells.
+
+    ``asked`` holds the cells the sweeps asked for and did not get: a run that did not finish (FAILED, KILLED,
+    RUNNING: still running or killed) and a job of a Hydra multirun that ended INVALID or FAILED before its run
+    existed (its status.json in the directory the runs' ``sweep`` tag names, ``unrun_jobs``), where no finished
+    run of the same cell exists. ``experiment``: the experiment's name (a multirun job of another one is not
+    counted)."""
+    rows, unfinished, notes, available, sweeps, run_ids = [], [], [], set(), set(), set()
     for run in _all_runs(client, exp_id):
         tags, params, logged = run.data.tags, run.data.params, run.data.metrics
         if not matches_sweep(tags.get("sweep", ""), sweep):
             continue
         available.update(params)
+        sweeps.add(tags.get("sweep", ""))
+        run_ids.add(run.info.run_id)
         name = tags.get("run_name", run.info.run_id[:8])
+        agent, learner = tags.get("agent", "?"), learner_of(tags, params)
+        cell = {"agent": agent, "learner": learner,
+                "wind": metrics.condition_arm(tags),  # the wind, and the vehicle where not RotorPy's (conf/vehicle/)
+                "seed": int(tags.get("seed", -1)),
+                **{key: learner if key == LEARNER else by_value(params, key) for key in by}}
         if run.info.status != "FINISHED":
             notes.append(f"left out run {name} ({run.info.status})")
+            unfinished.append({**cell, "what": f"run {name} {run.info.status}", "start_time": run.info.start_time})
             continue
-        agent = tags.get("agent", "?")
         row = {"run_id": run.info.run_id, "agent": agent, "label": agent_label(agent, tags, params),
-               "wind": metrics.condition_arm(tags),   # the wind, and the vehicle where it is not RotorPy's (conf/vehicle/)
-               "seed": int(tags.get("seed", -1)), "sweep": tags.get("sweep", ""), "run_name": name,
+               "wind": cell["wind"], "seed": cell["seed"], "sweep": tags.get("sweep", ""), "run_name": name,
                "start_time": run.info.start_time,
                "wall_minutes": (run.info.end_time - run.info.start_time) / 60000 if run.info.end_time else np.nan,
                # what the numbers were made on (runs before train.portable existed: native, CPU unknown)
@@ -160,26 +197,93 @@ def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
         row.update({key: logged.get(key, np.nan) for key in metrics.EVAL_KEYS})
         if not final_evaluated(params):  # its latest eval/* is an in-training evaluation, not the final policy's
             row.update({metrics.eval_key("final", f.name): np.nan for f in metrics.EVAL_FIELDS})
-        row.update({key: by_value(params, key) for key in by})
-        row["logged"] = frozenset(logged)
+        row.update({key: cell[key] for key in by})
+        row["learner"], row["logged"] = learner, frozenset(logged)
         rows.append(row)
     if available:
         check_keys(list(by), available)
+    key = CELL + [k for k in by if k != LEARNER]
+    asked = pd.DataFrame(unfinished + unrun_jobs(sweeps, run_ids, experiment, by),
+                         columns=[*key, "what", "start_time"])
     df = pd.DataFrame(rows)
-    if df.empty:
-        return df, notes
-    df["segment_steps"] = pd.to_numeric(df["segment_steps"], errors="coerce")
-    df["speeds"] = df["speeds"].map(lambda s: json.loads(s) if isinstance(s, str) else [])
-    df["segment_labels"] = [segment_labels(r["speeds"], r.get("directions"), r.get("vehicle_segments"), r.get("gusts"))
-                            for _, r in df.iterrows()]
-    df = df.sort_values(["agent", "wind", "seed", "start_time"])
-    dupes = df.duplicated(["agent", *by, "wind", "seed"], keep="last")
-    if dupes.any():
-        what = f"agent/{'/'.join(by)}/wind/seed" if by else "agent/wind/seed"
-        notes.append(f"{int(dupes.sum())} older duplicate run(s) of the same {what} left out "
-                     "(use --sweep to pick one sweep)")
-        df = df[~dupes]
-    return df.reset_index(drop=True), notes
+    if not df.empty:
+        df["segment_steps"] = pd.to_numeric(df["segment_steps"], errors="coerce")
+        df["speeds"] = df["speeds"].map(lambda s: json.loads(s) if isinstance(s, str) else [])
+        df["segment_labels"] = [segment_labels(r["speeds"], r.get("directions"), r.get("vehicle_segments"),
+                                               r.get("gusts")) for _, r in df.iterrows()]
+        df = df.sort_values(["agent", "wind", "seed", "start_time"])
+        dupes = df.duplicated(key, keep="last")
+        if dupes.any():
+            what = "/".join(["agent", *[k for k in by if k != LEARNER], "learner", "wind", "seed"])
+            notes.append(f"{int(dupes.sum())} older duplicate run(s) of the same {what} left out "
+                         "(use --sweep to pick one sweep)")
+            df = df[~dupes]
+        done = set(df[key].itertuples(index=False, name=None))
+        asked = asked[np.array([c not in done for c in asked[key].itertuples(index=False, name=None)], dtype=bool)]
+    asked = asked.sort_values("start_time", na_position="first").drop_duplicates(key, keep="last")
+    return Loaded(df.reset_index(drop=True), notes, asked.drop(columns="start_time").reset_index(drop=True))
+
+
+def load_runs(client: MlflowClient, exp_id: str, sweep: str | None = None,
+              by: list[str] = ()) -> tuple[pd.DataFrame, list[str]]:
+    """(finished runs as a DataFrame, notes about runs left out): ``read_runs`` without what is missing."""
+    loaded = read_runs(client, exp_id, sweep, by)
+    return loaded.runs, loaded.notes
+
+
+def split_learners(runs: pd.DataFrame, by: list[str]) -> tuple[pd.DataFrame, list[str], str | None]:
+    """(runs, by, note): where an agent has finished runs of more than one learner, ``by`` gains agent.learner (the
+    runs' learner column) so that its SB3 and JAX runs are separate conditions, as with ``--by agent.learner``,
+    and the note says so; else all three unchanged (the note None)."""
+    if runs.empty or LEARNER in by:
+        return runs, list(by), None
+    learners = runs.groupby("agent")["learner"].nunique()
+    mixed = sorted(learners.index[learners > 1])
+    if not mixed:
+        return runs, list(by), None
+    note = (f"runs of {', '.join(mixed)} come from several learners ({', '.join(sorted(set(runs['learner'])))}): "
+            f"kept apart as with --by {LEARNER}")
+    return runs.assign(**{LEARNER: runs["learner"]}), [*by, LEARNER], note
+
+
+def _flat(cfg, prefix: str = "") -> dict[str, str]:
+    """``{"a.b": "value"}`` of a nested config, values as a run logs them (sweep.tracking.flatten)."""
+    if isinstance(cfg, dict):
+        return {k: v for key, value in cfg.items() for k, v in _flat(value, f"{prefix}{key}.").items()}
+    return {prefix[:-1]: json.dumps(cfg) if isinstance(cfg, list) else str(cfg)}
+
+
+def unrun_jobs(sweeps, run_ids: set[str], experiment: str | None, by: list[str] = ()) -> list[dict]:
+    """The jobs of the multiruns ``sweeps`` (the runs' ``sweep`` tags: absolute paths of directories that exist)
+    that ended INVALID or FAILED without a run among ``run_ids``: one cell each (as ``read_runs``), read from the
+    job's ``.hydra/config.yaml`` (a job of another experiment than ``experiment``, or without that file, is
+    skipped), ``what`` naming the job, its status and the reason in its status.json."""
+    import yaml  # noqa: PLC0415 - only when a sweep directory is there to read
+
+    out = []
+    for sweep in sorted(s for s in sweeps if Path(s).is_absolute() and Path(s).is_dir()):  # not "single"
+        for job in sorted((p for p in Path(sweep).iterdir() if (p / "status.json").is_file()),
+                          key=lambda p: (len(p.name), p.name)):
+            status = read_status(job) or {}
+            if status.get("status") not in ("INVALID", "FAILED") or status.get("run_id") in run_ids:
+                continue
+            try:
+                config = _flat(yaml.safe_load((job / ".hydra" / "config.yaml").read_text()) or {})
+            except (OSError, yaml.YAMLError):
+                continue
+            if experiment is not None and config.get("tracking.experiment", experiment) != experiment:
+                continue
+            learner = config.get(LEARNER, OLD_LEARNER)
+            tags = {"wind": config.get("wind.name", "?"), "vehicle": config.get("vehicle.name", "nominal")}
+            seed = config.get("seed", "-1")
+            reason = " ".join(str(status.get("reason", "")).split())
+            out.append({"agent": config.get("agent.name", "?"), "learner": learner,
+                        "wind": metrics.condition_arm(tags),
+                        "seed": int(seed) if seed.lstrip("-").isdigit() else -1,
+                        **{key: learner if key == LEARNER else by_value(config, key) for key in by},
+                        "what": f"job {job.name} of {sweep} {status['status']}" + (f": {reason}" if reason else ""),
+                        "start_time": np.nan})
+    return out
 
 
 AXES = {(1, 0): "+x", (-1, 0): "−x", (0, 1): "+y", (0, -1): "−y"}
