@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 import itertools
+import re
 from pathlib import Path
 
 import pytest
+import yaml
+from hydra.utils import get_class
 from mlflow.tracking import MlflowClient
 
 from conftest import CONF, compose_cfg, run_cli
@@ -19,23 +22,26 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 # conf/hooks/default.yaml, in order (the checkpointer, which runs last, moved to the end)
 DEFAULT_HOOKS = ["NonFiniteGuard", "PlasticityDiagnostics", "EnvMonitor", "PlasticityProbe", "PeriodicEvaluation",
                  "BestPolicies", "ProgressLine", "Checkpointer"]
-# agent YAML -> the remedies it switches on (their classes, in config order)
-REMEDIES = {"ppo": [], "reset_all": ["ResetAll"], "l2": ["L2Regularization"], "recom_l2": ["L2Regularization", "Recom"],
-            "recom_l2_relative": ["L2Regularization", "Recom"], "redo": ["ReDo"],
-            "shrink_perturb": ["ShrinkPerturb"], "cbp_l2": ["L2Regularization", "ContinualBackprop"],
-            "l2_init": ["L2Init"], "layer_norm": [], "l2_lr_decay": ["L2Regularization"],
-            "l2_lr_decay_8m": ["L2Regularization"], "ppo_target_kl": [],
-            "layer_norm_l2_lr_decay_8m": ["L2Regularization"]}
+REMEDY_BLOCKS = {p.stem: yaml.safe_load(p.read_text()) for p in sorted((CONF / "remedy").glob("*.yaml"))}
+
+
+def remedies_of(cfg) -> list[str]:
+    """The classes of the remedies an agent composes and leaves enabled, in config order (read from its YAML blocks,
+    so a new agent or remedy needs no table here)."""
+    return [get_class(b._target_).__name__ for b in cfg.agent.values()
+            if hasattr(b, "get") and "_target_" in b and b.get("enabled", True)]
 
 
 def test_groups_exist():
-    assert set(AGENTS) == set(REMEDIES), "a new agent YAML needs its row in REMEDIES"
     assert {"none", "paper"} <= set(WINDS)
     assert {"paper", "demo", "smoke", "remedies"} <= set(EXPERIMENTS)
-    remedy_blocks = {p.stem for p in (CONF / "remedy").glob("*.yaml")}
-    for agent in AGENTS:   # each agent names itself, has a legend label, and carries every remedy block
+    assert {"ppo", "l2", "recom_l2", "reset_all"} <= set(AGENTS)
+    for agent in AGENTS:   # each agent names itself and has a legend label
         cfg = compose_cfg([f"agent={agent}"])
-        assert cfg.agent.name == agent and cfg.agent.label.strip() and remedy_blocks <= set(cfg.agent)
+        assert cfg.agent.name == agent and cfg.agent.label.strip()
+    # the paper's agents compose what the paper says (and PPO carries no remedy at all)
+    assert remedies_of(compose_cfg(["agent=ppo"])) == []
+    assert remedies_of(compose_cfg(["agent=recom_l2"])) == ["L2Regularization", "Recom"]
 
 
 VEHICLES = sorted(p.stem for p in (CONF / "vehicle").glob("*.yaml"))
@@ -58,7 +64,7 @@ def test_every_config_composes_and_validates(agent, experiment, wind, vehicle, l
     cfg = compose_cfg(overrides + ([f"experiment={experiment}"] if experiment else []))
     validate(cfg)
     assert (cfg.agent.name, cfg.wind.name, cfg.vehicle.name, cfg.agent.learner) == (agent, wind, vehicle, learner)
-    assert [type(h).__name__ for h in build_hooks(cfg)] == REMEDIES[agent] + DEFAULT_HOOKS
+    assert [type(h).__name__ for h in build_hooks(cfg)] == remedies_of(cfg) + DEFAULT_HOOKS
 
 
 def test_the_composition_tests_meet_every_pair_of_values():
@@ -191,25 +197,83 @@ def test_every_config_key_is_in_the_readme():
 
 
 def test_a_missing_key_is_one_line():
-    with pytest.raises(ConfigError, match=r"^agent\.recom: missing; must be a block with keys _target_, enabled"):
-        validate(compose_cfg(["~agent.recom"]))
+    with pytest.raises(ConfigError, match=r"^agent\.recom\.gain: missing; must be a number >= 0"):
+        validate(compose_cfg(["agent=recom_l2", "~agent.recom.gain"]))
 
 
-def test_every_remedy_block_has_its_schema_block():
-    """validate lets an unknown agent block with a _target_ through (the +agent.<name> extension), so a
-    conf/remedy/ block whose schema block was forgotten would never be checked: each must be a field of Agent."""
-    from dataclasses import fields
+def hook_blocks() -> list[tuple[str, dict]]:
+    """Every hook block conf/ holds: each conf/remedy/ YAML and each block of conf/hooks/ (as written, unresolved)."""
+    hooks = [(f"hooks/{p.stem}", block) for p in sorted((CONF / "hooks").glob("*.yaml"))
+             for name, block in yaml.safe_load(p.read_text()).items() if name != "defaults"]
+    return [(f"remedy/{k}", v) for k, v in REMEDY_BLOCKS.items()] + hooks
 
-    from sweep.config import Agent, Remedy
 
-    blocks = {f.name: f.type for f in fields(Agent)}
-    for path in (CONF / "remedy").glob("*.yaml"):
-        cfg = compose_cfg()
-        users = [k for k, v in cfg.agent.items() if hasattr(v, "get") and v.get("_target_") ==
-                 __import__("yaml").safe_load(path.read_text())["_target_"]]
-        assert users and all(u in blocks for u in users), (path.stem, users)
-    assert all(issubclass(__import__("sweep.config", fromlist=[t]).__dict__[t], Remedy)
-               for t in ("WeightDecay", "Recom", "ReDo", "ShrinkPerturb", "CBP"))
+@pytest.mark.parametrize("where,block", hook_blocks(), ids=[w for w, _ in hook_blocks()])
+def test_every_hook_block_has_its_schema_beside_its_class(where, block):
+    """Each class a conf/ block builds declares ``Settings`` (a HookSettings dataclass) whose fields are the block's
+    keys and the arguments of its __init__, so every setting is typed and ranged (validate checks it)."""
+    import inspect
+    from dataclasses import fields, is_dataclass
+
+    from sweep.config import HookSettings
+
+    cls = get_class(block["_target_"])
+    assert is_dataclass(cls.Settings) and issubclass(cls.Settings, HookSettings), where
+    schema = {f.name for f in fields(cls.Settings)} - {"_target_", "enabled"}
+    assert schema == set(block) - {"_target_", "enabled"}, where
+    arguments = {name for name, p in inspect.signature(cls).parameters.items()
+                 if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}   # object's (*args, **kwargs): none
+    assert schema == arguments, where
+
+
+@pytest.mark.parametrize("override, expected", [
+    # a block whose class declares no schema, or that cannot be imported: one line naming it
+    ("+agent.odd._target_=collections.OrderedDict", "agent.odd: collections.OrderedDict declares no settings schema"),
+    ("+agent.odd._target_=my_lab.Nope", "agent.odd._target_='my_lab.Nope': cannot be imported (No module named"),
+    ("+hooks.odd._target_=collections.OrderedDict", "hooks.odd: collections.OrderedDict declares no settings schema"),
+    # a key the schema does not know, and a value out of range, in an agent's remedy and in a hook
+    ("agent=redo +agent.redo.kappa=1", "agent.redo.kappa: not a config key (allowed under agent.redo: _target_, enabled"),
+    ("agent=redo agent.redo.networks=[critic]", "agent.redo.networks=['critic']: must be a non-empty subset of [policy, value]"),
+    ("agent=redo agent.redo.enabled=maybe", "agent.redo.enabled='maybe': must be true|false"),
+    ("+hooks.probe.stepz=3", "hooks.probe.stepz: not a config key"),
+    ("hooks.checkpointer.every=0", "hooks.checkpointer.every=0: must be an integer > 0"),
+    # a remedy's own rules across keys (check_config)
+    ("agent=l2 +remedy@agent.l2_init=l2_init", "agent.l2.enabled=True and agent.l2_init.enabled=True: must be one"),
+    ("agent=recom_l2 agent.ppo.lr_schedule=linear", "agent.ppo.lr_schedule='linear': must be constant with "
+                                                    "agent.recom.enabled=True"),
+])
+def test_a_hook_block_is_checked_by_its_own_schema(override, expected):
+    with pytest.raises(ConfigError) as err:
+        validate(compose_cfg(override.split()))
+    assert str(err.value).startswith(expected) and "\n" not in str(err.value), str(err.value)
+
+
+def test_a_remedy_setting_given_to_every_agent_of_a_sweep_is_checked_and_dropped_where_the_agent_lacks_it():
+    """`python -m sweep -m agent=ppo,recom_l2 ++agent.recom.interval=512`: PPO gets a recom block without a _target_;
+    it is checked against RECOM's schema (a typo or a bad value is an error) and not run; it stays in the job key, so
+    PPO given two such values is two jobs, as a sweep over them asks (not one checkpoint written by both)."""
+    from sweep.checkpoint import job_key
+    from omegaconf import OmegaConf
+
+    from sweep.config import unrun_remedy_settings
+
+    cfg = compose_cfg(["agent=ppo", "++agent.recom.interval=512"])
+    validate(cfg)
+    assert list(unrun_remedy_settings(OmegaConf.to_container(cfg.agent))) == ["recom"] and remedies_of(cfg) == []
+    assert [type(h).__name__ for h in build_hooks(cfg)] == DEFAULT_HOOKS
+    assert job_key(cfg, "sqlite:///x.db") != job_key(compose_cfg(["agent=ppo", "++agent.recom.interval=1024"]), "sqlite:///x.db")
+    for override, message in (("++agent.recom.interval=0", "agent.recom.interval=0: must be an integer > 0"),
+                              ("++agent.recom.intervall=5", "agent.recom.intervall: not a config key"),
+                              ("++agent.recomm.interval=5", "agent.recomm: not a config key")):
+        with pytest.raises(ConfigError, match="^" + re.escape(message)):
+            validate(compose_cfg(["agent=ppo", override]))
+
+
+def test_a_switched_off_remedy_is_not_checked_by_its_rules_and_does_not_run():
+    cfg = compose_cfg(["agent=l2", "+remedy@agent.l2_init=l2_init", "agent.l2_init.enabled=false"])
+    validate(cfg)
+    assert remedies_of(cfg) == ["L2Regularization"]
+    assert [type(h).__name__ for h in build_hooks(cfg)] == ["L2Regularization"] + DEFAULT_HOOKS
 
 
 def test_a_key_outside_the_schema_is_named():
@@ -228,19 +292,19 @@ def test_the_schema_is_in_hydras_config_store_and_types_every_key():
 
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         empty = compose(config_name="sweep_schema")
-    assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent, "learner") and OmegaConf.is_missing(empty.agent.recom, "gain")
+    assert OmegaConf.is_missing(empty.env, "backend") and OmegaConf.is_missing(empty.agent, "learner") and OmegaConf.is_missing(empty.agent.ppo, "gamma")
     for node in (empty.agent.learners, empty.env.backends, empty.hooks):  # Dict nodes: Hydra's struct flag would refuse new keys
         OmegaConf.set_struct(node, False)
-    typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=recom_l2"]), resolve=True))
-    assert isinstance(typed.agent.recom.gradient, Enum) and typed.agent.recom.gradient.value == "absolute"
-    assert typed.agent.recom.gain == 5e-6 and typed.env.n_envs == 1
+    typed = OmegaConf.merge(empty, OmegaConf.to_container(compose_cfg(["agent=ppo"]), resolve=True))
+    assert isinstance(typed.agent.ppo.lr_schedule, Enum) and typed.agent.ppo.lr_schedule.value == "constant"
+    assert typed.agent.ppo.gamma == 0.99 and typed.env.n_envs == 1
 
 
 # The resume key of `agent=recom_l2` (train.checkpoint_dir=null, store sqlite:///x.db). It hashes the resolved
 # settings, so any new or renamed config key changes it, and a sweep started before the change is then not
 # resumed by resume=auto (its runs start over). Update it only for such a change, and say so in the commit.
-JOB_KEY = "051028e227272094"   # conditions (issue 33): the vehicle group, wind.directions, eval.condition/mass/rotor_efficiency,
-                                # the evaluation hook's schedules; checkpoint format 3; wind.gusts/gust_altitude, eval.gust
+JOB_KEY = "718c5c1647fcd682"   # issue 53: only enabled remedies enter the key (each without its `enabled` flag); the
+                                # key of an archived run's stored config is the same as the new composition's
 
 
 def test_the_resume_key_changes_only_with_the_settings():
@@ -257,3 +321,32 @@ def test_the_resume_key_changes_only_with_the_settings():
     assert job_key(compose_cfg(base + ["hooks.progress.every_s=5"]), "sqlite:///x.db") == JOB_KEY
     assert job_key(compose_cfg(base + ["~hooks.probe"]), "sqlite:///x.db") != JOB_KEY
     assert job_key(compose_cfg(base), "sqlite:///y.db") != JOB_KEY
+    # a remedy the job composes but does not run is not in it; one it runs is
+    assert job_key(compose_cfg(base + ["+remedy@agent.redo=redo", "agent.redo.enabled=false"]), "sqlite:///x.db") == JOB_KEY
+    assert job_key(compose_cfg(base + ["+remedy@agent.redo=redo"]), "sqlite:///x.db") != JOB_KEY
+    assert job_key(compose_cfg(base + ["agent.recom.enabled=false"]), "sqlite:///x.db") != JOB_KEY
+
+
+def test_adding_a_remedy_or_a_hook_to_conf_moves_no_existing_job_key(tmp_path):
+    """A new remedy (conf/remedy/ + an agent composing it) and a new hook (conf/hooks/) added to a copy of conf/: every
+    agent that was there keeps its key, with the default hooks and with the paper's other settings."""
+    import shutil
+
+    from hydra import compose, initialize_config_dir
+
+    from sweep.checkpoint import job_key
+
+    shutil.copytree(CONF, tmp_path / "conf")
+    (tmp_path / "conf" / "remedy" / "new_remedy.yaml").write_text("_target_: sweep.plasticity.redo.ReDo\nenabled: true\n"
+                                                                "every_updates: 3\ntau: 0.2\nnetworks: [policy]\n"
+                                                                "batch_size: 64\nreset_adam: false\n")
+    (tmp_path / "conf" / "agent" / "new_agent.yaml").write_text("defaults:\n  - ppo\n  - /remedy@new_remedy: new_remedy\n"
+                                                              "  - _self_\nname: new_agent\nlabel: New\n")
+    (tmp_path / "conf" / "hooks" / "new_hook.yaml").write_text("new_hook:\n  _target_: sweep.monitor.EnvMonitor\n")
+
+    def keys(conf):
+        with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+            return {(a, w): job_key(compose(config_name="config", overrides=[f"agent={a}", f"wind={w}"]), "sqlite:///x.db")
+                    for a in AGENTS for w in ("paper", "flip")}
+
+    assert keys(tmp_path / "conf") == keys(CONF)

@@ -46,7 +46,7 @@ def test_three_agents_log_every_metric(tmp_path):
     uri = f"sqlite:///{tmp_path / 'x.db'}"
     proc = run_cli(["-m", "agent=ppo,l2,recom_l2", "seed=0", "wind.segment_steps=512",
                     "train.total_timesteps=2048", "agent.ppo.n_steps=512", "eval.episodes=2",
-                    "agent.recom.interval=512", f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=2"],
+                    "++agent.recom.interval=512", f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=2"],
                    uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     client, runs = runs_of(uri)

@@ -224,8 +224,8 @@ def test_lr_decay_timesteps_reaches_the_floor_early_on_both_learners(name):
 def test_resume_between_two_resets_is_the_uninterrupted_run(tmp_path, monkeypatch, checkpoint_dir, learner):
     """ReDo (every 2 updates), shrink-and-perturb (every 3) and CBP + L2 in one run; killed by a fault after a
     checkpoint taken between two ReDo resets, resumed from that checkpoint: identical histories."""
-    config = ["agent=cbp_l2", "agent.redo.enabled=true", "agent.redo.every_updates=2", "agent.redo.tau=0.6",
-              "agent.shrink_perturb.enabled=true", "agent.shrink_perturb.every_updates=3", "agent.cbp.maturity=0",
+    config = ["agent=cbp_l2", "+remedy@agent.redo=redo", "agent.redo.every_updates=2", "agent.redo.tau=0.6",
+              "+remedy@agent.shrink_perturb=shrink_perturb", "agent.shrink_perturb.every_updates=3", "agent.cbp.maturity=0",
               "agent.cbp.replacement_rate=1e-3", f"agent.learner={learner}", "agent.ppo.n_steps=256",
               "agent.ppo.n_epochs=2", "train.total_timesteps=2048", "train.checkpoint_every=768", "seed=3",
               "eval.episodes=1", "env.episode_seconds=1.0"]
@@ -250,3 +250,67 @@ def test_resume_between_two_resets_is_the_uninterrupted_run(tmp_path, monkeypatc
     assert load_checkpoint(job / "checkpoint.pt")["num_timesteps"] == 768   # after ReDo's reset 1, before reset 2
     resumed = run(compose_cfg([*config, f"resume={job}"]), tmp_path / "resumed")
     assert histories(uri, resumed) == reference
+
+
+def test_weight_clipping_bounds_are_the_init_bounds_of_a_hand_built_network():
+    """s_l = 1/sqrt(fan_in) of every Linear layer, weight and bias alike; LayerNorm and log_std are not clipped."""
+    from sweep.plasticity.weight_clip import init_bounds
+
+    sb3, _ = pair(["agent=layer_norm"])
+    bounds = init_bounds(sb3, ("policy", "value"))
+    expected = {}
+    for prefix in ("mlp_extractor.policy_net", "mlp_extractor.value_net"):   # Linear, LayerNorm, tanh per layer
+        expected.update({f"{prefix}.0.weight": 13 ** -0.5, f"{prefix}.0.bias": 13 ** -0.5,
+                         f"{prefix}.3.weight": 64 ** -0.5, f"{prefix}.3.bias": 64 ** -0.5})
+    for head in ("action_net", "value_net"):
+        expected.update({f"{head}.weight": 64 ** -0.5, f"{head}.bias": 64 ** -0.5})
+    assert bounds == pytest.approx(expected)
+    assert set(init_bounds(sb3, ("value",))) == {k for k in expected if "value" in k}
+
+
+def test_weight_clipping_acts_after_every_step_alike_on_both_learners():
+    """kappa 0.5: the init already reaches past the bound, so every step clips. SB3 (a step hook on its optimizer)
+    and JAX (the clip traced into the compiled update) agree after one update; every clipped parameter is within
+    its bound, some sit on it; clipping once after an unclipped update instead gives other weights."""
+    overrides = ["agent=weight_clip", "agent.weight_clip.kappa=0.5"]
+    sb3, jx = pair(overrides)
+    plain = pair()[1]
+    sb3_rollout_into_both(sb3, jx, plain)
+    calls = []
+    sb3.add_step_transform(lambda params, xp: calls.append(1) or {})
+    for model in (sb3, jx, plain):
+        model.set_logger(configure_logger(0, None, "", False))
+        np.random.seed(123)
+        model.train()
+    assert len(calls) == sb3.minibatches_per_update   # once per optimizer step
+    a, b = sb3.parameter_arrays(), jx.parameter_arrays()
+    for k in a:
+        np.testing.assert_allclose(b[k], a[k], atol=WEIGHT_ATOL["decoupled"], err_msg=k)
+    (clip,) = [h for h in remedy_hooks(compose_cfg(overrides).agent)]
+    clip.setup(jx, None)
+    for k, bound in clip.bounds.items():
+        assert np.abs(a[k]).max() <= np.float32(bound), k
+    assert clip.act(jx, None)["at_bound"] > 0.05
+    once = plain.parameter_arrays()
+    once = {k: np.clip(v, -clip.bounds[k], clip.bounds[k]) if k in clip.bounds else v for k, v in once.items()}
+    assert max(float(np.abs(once[k] - b[k]).max()) for k in clip.bounds) > 100 * WEIGHT_ATOL["decoupled"]
+    assert np.array_equal(a["log_std"], sb3.parameter_arrays()["log_std"])
+
+
+@pytest.mark.parametrize("learner", LEARNERS)
+def test_the_final_policy_is_within_the_clip_bounds(tmp_path, learner, checkpoint_dir):
+    """The stored model is the one after the last update's steps were clipped (issue 53: remedies used to skip the
+    last update)."""
+    from stable_baselines3 import PPO
+
+    from sweep.plasticity.weight_clip import init_bounds
+
+    cfg = compose_cfg(["agent=weight_clip", "agent.weight_clip.kappa=0.5", f"agent.learner={learner}",
+                       "agent.ppo.n_steps=256", "agent.ppo.n_epochs=2", "train.total_timesteps=512", "eval.episodes=1",
+                       f"tracking.uri=sqlite:///{tmp_path / 'x.db'}", "hooks.probe.steps=0"])
+    run(cfg, tmp_path / "job")
+    model = PPO.load(tmp_path / "job" / "model.zip", device="cpu")
+    params = {k: v.numpy() for k, v in model.policy.state_dict().items()}
+    built = pair(["agent=weight_clip"])[0]
+    for k, s in init_bounds(built, ("policy", "value")).items():
+        assert np.abs(params[k]).max() <= np.float32(0.5 * s), k

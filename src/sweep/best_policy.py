@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from sweep.config import HookSettings
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord
 
 
 class BestPolicies(Hook):
+    Settings = HookSettings
     requires = ("evaluation",)
 
     def __init__(self) -> None:

@@ -18,6 +18,7 @@ import hashlib
 import json
 import os
 import random
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +26,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from sweep.config import ConfigError, settings
+from sweep.config import ConfigError, HookSettings, positive_int, settings
 from sweep.status import read_json, update_json
 from sweep.training.hooks import Hook
 
@@ -33,12 +34,24 @@ if TYPE_CHECKING:
     from sweep.training.loop import Training
 
 
+def _running(blocks: dict) -> dict:
+    """The hook blocks that run (``enabled`` not false), each without its ``enabled`` flag."""
+    return {name: {k: v for k, v in block.items() if k != "enabled"} for name, block in blocks.items()
+            if block.get("enabled", True)}
+
+
 def job_key(cfg: DictConfig, uri: str) -> str:
-    """Stable id of a job: its resolved settings (``config.settings``) without ``resume`` and the progress line's
-    period, its hooks in order with their resolved settings (a run with another hook list, or a hook set otherwise,
-    is another job), and the tracking store."""
+    """Stable id of a job: what it runs, and the tracking store. That is its resolved settings (``config.settings``)
+    without ``resume`` and the progress line's period; of the agent's remedy blocks only those enabled (a remedy the
+    job does not run, or one added to the code since, does not enter it); its hooks in order with their resolved
+    settings (a run with another hook list, or a hook set otherwise, is another job)."""
     container = settings(cfg)
-    hooks = OmegaConf.to_container(cfg.get("hooks", OmegaConf.create({})), resolve=True)
+    agent = container.get("agent", {})
+    remedies = {k: v for k, v in agent.items() if isinstance(v, dict) and "_target_" in v}
+    for name in remedies:
+        agent.pop(name)
+    agent.update(_running(remedies))
+    hooks = _running(OmegaConf.to_container(cfg.get("hooks", OmegaConf.create({})), resolve=True))
     hooks.get("progress", {}).pop("every_s", None)
     container["hooks"] = [[name, spec] for name, spec in hooks.items()]
     container.pop("resume", None)
@@ -97,6 +110,10 @@ class Checkpointer(Hook):
     Runs last (``runs_last``), so the snapshot holds what every other hook did and returned after that update."""
 
     runs_last = True
+
+    @dataclass
+    class Settings(HookSettings):
+        every: int = positive_int(" (timesteps)")
 
     def __init__(self, every: int) -> None:
         self.every = int(every)

@@ -1,18 +1,25 @@
-"""The config schema, in one place: every key's type, its allowed choices or range, and the rules across keys.
+"""The config schema, in one place for the run and beside each hook for its own block.
 
-``SweepConfig`` mirrors conf/ (conf/config.yaml, one agent YAML with its conf/remedy/ blocks, one wind YAML):
-the YAML files hold the values and their comments, the dataclasses below the types (an ``Enum`` for a
-choice) and, in each field's ``check``, the range a type cannot say. The schema is registered in Hydra's
-ConfigStore as ``sweep_schema`` (``compose(config_name="sweep_schema")`` gives it, every value ``???``).
-It is not in conf/config.yaml's defaults list: Hydra reports a schema error at composition in several lines
-with exit code 1, and a sweep must instead name the first bad key in one line and exit 2 before anything is
-trained or tracked. So ``validate(cfg)`` merges the composed config into the schema and raises
-``ConfigError``: ``train.total_timesteps=-5: must be an integer > 0``.
+``SweepConfig`` mirrors conf/ (conf/config.yaml, one agent YAML, one wind YAML, one vehicle YAML): the YAML files
+hold the values and their comments, the dataclasses below the types (an ``Enum`` for a choice) and, in each field's
+``check``, the range a type cannot say. The schema is registered in Hydra's ConfigStore as ``sweep_schema``
+(``compose(config_name="sweep_schema")`` gives it, every value ``???``). It is not in conf/config.yaml's defaults
+list: Hydra reports a schema error at composition in several lines with exit code 1, and a sweep must instead name
+the first bad key in one line and exit 2 before anything is trained or tracked. So ``validate(cfg)`` merges the
+composed config into the schema and raises ``ConfigError``: ``train.total_timesteps=-5: must be an integer > 0``.
+
+Hook blocks (an agent's remedies ``agent.<name>`` from conf/remedy/, and ``hooks.<name>`` from conf/hooks/) are
+checked against the ``Settings`` dataclass their class declares beside itself (a ``HookSettings`` subclass built
+with the helpers below), and then by the class's own ``check_config`` for rules across keys (RECOM wants a
+constant LR schedule): a new remedy brings its schema along and touches nothing here. A block whose class
+declares no schema is a config error.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import typing
+from pathlib import Path
 from dataclasses import dataclass, field, fields, is_dataclass
 from enum import Enum
 from typing import Any, Callable, Dict, List, Optional
@@ -35,12 +42,6 @@ TimeLimit = choice("TimeLimit", "truncate", "terminate")
 AfterList = choice("AfterList", "repeat", "hold")
 Activation = choice("Activation", "tanh", "relu")
 LRSchedule = choice("LRSchedule", "constant", "linear", "cosine")
-DecayMode = choice("DecayMode", "coupled", "decoupled")
-ParamGroup = choice("ParamGroup", "policy", "value", "log_std")
-NetworkName = choice("NetworkName", "policy", "value")
-RecomPrevious = choice("RecomPrevious", "last_update", "shifted")
-RecomGradient = choice("RecomGradient", "absolute", "relative")
-RecomReward = choice("RecomReward", "return", "per_step")
 EvalPolicy = choice("EvalPolicy", "final", "best", "both")
 EvalCondition = choice("EvalCondition", "fixed", "current", "all")
 
@@ -84,8 +85,6 @@ def vector3() -> Any:
                "a non-zero 3-vector [x, y, z]")
 
 
-PARAMS = f"a non-empty subset of [{', '.join(ParamGroup.__members__)}]"
-NETWORKS = f"a non-empty subset of [{', '.join(NetworkName.__members__)}]"
 
 
 # ---- the tree (conf/config.yaml top to bottom) --------------------------------------------------------------------
@@ -255,57 +254,11 @@ class Policy:
 
 
 @dataclass
-class Remedy(Target):
-    """A conf/remedy/ block: the hook it builds and whether the agent uses it."""
-    enabled: bool = MISSING
-
-
-@dataclass
-class WeightDecay(Remedy):   # conf/remedy/l2.yaml, l2_init.yaml
-    coef: float = non_negative()
-    mode: DecayMode = MISSING
-    params: List[ParamGroup] = non_empty(PARAMS)
-    biases: bool = MISSING
-
-
-@dataclass
-class Recom(Remedy):
-    interval: int = positive_int(" (timesteps)")
-    window: int = positive_int(" (episodes)")
-    gain: float = non_negative()
-    lr_min: float = positive()
-    lr_max: float = positive()
-    previous: RecomPrevious = MISSING
-    gradient: RecomGradient = MISSING
-    reward: RecomReward = MISSING
-
-
-@dataclass
-class ReDo(Remedy):
-    every_updates: int = positive_int(" (PPO updates)")
-    tau: float = unit_interval()
-    networks: List[NetworkName] = non_empty(NETWORKS)
-    batch_size: int = positive_int()
-    reset_adam: bool = MISSING
-
-
-@dataclass
-class ShrinkPerturb(Remedy):
-    every_updates: int = positive_int(" (PPO updates)")
-    shrink: float = unit_interval()
-    perturb: float = non_negative()
-    params: List[ParamGroup] = non_empty(PARAMS)
-    biases: bool = MISSING
-
-
-@dataclass
-class CBP(Remedy):
-    replacement_rate: float = unit_interval(" (per eligible unit and minibatch step)")
-    maturity: int = at_least(0, unit=" (minibatch steps)")
-    decay: float = unit_interval()
-    networks: List[NetworkName] = non_empty(NETWORKS)
-    batch_size: int = positive_int()
-    reset_adam: bool = MISSING
+class HookSettings(Target):
+    """The settings schema of a hook or remedy block (an ``agent.<name>`` block or a ``hooks.<name>`` block): its
+    class declares a subclass of this as ``Settings``, one field per argument of its ``__init__``, beside the class
+    (e.g. ``sweep.plasticity.redo.ReDo.Settings``). ``enabled`` (default true) switches the block off."""
+    enabled: bool = key(lambda v: isinstance(v, bool), "true|false", default=True)
 
 
 @dataclass
@@ -316,13 +269,8 @@ class Agent:
     learners: Dict[str, Factory] = field(default_factory=dict)
     ppo: PPO = field(default_factory=PPO)
     policy: Policy = field(default_factory=Policy)
-    l2: WeightDecay = field(default_factory=WeightDecay)
-    recom: Recom = field(default_factory=Recom)
-    redo: ReDo = field(default_factory=ReDo)
-    shrink_perturb: ShrinkPerturb = field(default_factory=ShrinkPerturb)
-    cbp: CBP = field(default_factory=CBP)
-    l2_init: WeightDecay = field(default_factory=WeightDecay)
-    reset_all: Remedy = field(default_factory=Remedy)
+    # and the agent's remedies: any other key holding a block with a _target_ (conf/remedy/), checked against the
+    # ``Settings`` of the class it names (``validate``)
 
 
 @dataclass
@@ -361,7 +309,8 @@ def settings(cfg: DictConfig) -> dict:
 
 # ---- validation ------------------------------------------------------------------------------------------------
 def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls, globalns=globals())
+    """Field types; a class declared elsewhere (a hook's ``Settings``) is read in its own module's names."""
+    return typing.get_type_hints(cls)
 
 
 def _what(typ: Any) -> str:
@@ -417,6 +366,8 @@ def _check(value: Any, typ: Any, key: str, meta: Any = None) -> None:
             if name not in names:
                 raise ConfigError(f"{key}.{name}: not a config key (allowed under {key}: {', '.join(names)})")
         for f in fields(typ):
+            if f.name not in value and f.default is not dataclasses.MISSING and f.default != MISSING:
+                continue   # a schema default (e.g. HookSettings.enabled, true): the class's own default applies
             if f.name not in value:
                 raise ConfigError(f"{key}.{f.name}: missing; must be {f.metadata.get('allowed') or _what(hints[f.name])}")
             _check(value[f.name], hints[f.name], f"{key}.{f.name}", f.metadata)
@@ -446,15 +397,72 @@ def _check(value: Any, typ: Any, key: str, meta: Any = None) -> None:
         raise _fail(key, value, allowed)
 
 
+def one_line(err: BaseException) -> str:
+    """An error's whole message on one line (Hydra's instantiation errors put the cause on the lines below)."""
+    return " ".join(line.strip() for line in str(err).splitlines() if line.strip())
+
+
+def component_class(block: dict, where: str) -> type:
+    """The class a block's ``_target_`` names (ConfigError if it cannot be imported)."""
+    from hydra.utils import get_class
+
+    target = block.get("_target_")
+    if not isinstance(target, str) or not target.strip():
+        raise ConfigError(f"{where}._target_={target!r}: must be the dotted path of a class")
+    try:
+        return get_class(target)
+    except Exception as err:  # noqa: BLE001 - an import error of the user's module, or no such class
+        raise ConfigError(f"{where}._target_={target!r}: cannot be imported ({one_line(err.__cause__ or err)})") from None
+
+
+def components(plain: dict) -> list[tuple[str, dict]]:
+    """Every hook block of a resolved config, by where it sits: the agent's remedies (``agent.<name>`` blocks with a
+    ``_target_``), then ``hooks.<name>``."""
+    agent = [(f"agent.{k}", v) for k, v in plain.get("agent", {}).items() if isinstance(v, dict) and "_target_" in v
+             and k not in {f.name for f in fields(Agent)}]
+    return agent + [(f"hooks.{k}", v) for k, v in (plain.get("hooks") or {}).items() if isinstance(v, dict)]
+
+
+REMEDY_GROUP = Path(__file__).resolve().parents[2] / "conf" / "remedy"   # the remedies an agent may compose
+
+
+def unrun_remedy_settings(agent: dict) -> dict[str, dict]:
+    """``agent.<name>`` blocks without a ``_target_`` where ``name`` is a remedy of conf/remedy/ the agent does not
+    compose: settings given to every agent of a sweep (``++agent.recom.interval=512`` with ``agent=ppo,recom_l2``)
+    that this one does not run. Checked against that remedy's schema (``validate``), kept in the config (so two jobs
+    given different such settings stay two jobs: ``sweep.checkpoint.job_key``) and never built."""
+    known = {f.name for f in fields(Agent)}
+    return {k: v for k, v in agent.items() if k not in known and isinstance(v, dict) and "_target_" not in v
+            and (REMEDY_GROUP / f"{k}.yaml").exists()}
+
+
+def _check_unrun(name: str, block: dict) -> None:
+    import yaml
+
+    check_component(f"agent.{name}", {**yaml.safe_load((REMEDY_GROUP / f"{name}.yaml").read_text()), **block})
+
+
+def check_component(where: str, block: dict) -> type:
+    """Check one hook block against the ``Settings`` schema its class declares; returns the class."""
+    cls = component_class(block, where)
+    schema = getattr(cls, "Settings", None)
+    if not (isinstance(schema, type) and is_dataclass(schema) and issubclass(schema, HookSettings)):
+        raise ConfigError(f"{where}: {block['_target_']} declares no settings schema: it needs a `Settings` dataclass "
+                          "(a subclass of sweep.config.HookSettings, one field per argument; README 'Add a remedy')")
+    _check({"enabled": True, **block}, schema, where)
+    return cls
+
+
 def validate(cfg: DictConfig) -> None:
     """Raise ConfigError naming the first invalid key, its value and what is allowed."""
     plain = OmegaConf.to_container(cfg, resolve=True)
     plain.pop("hydra", None)
-    # An agent block with a _target_ that the schema does not list (``+agent.<name>._target_=...``) is an extra
-    # hook, built like a remedy (e.g. tests/faults.py); its keys are its class's arguments, checked there.
-    # (Every conf/remedy/ block is a field of Agent: tests/test_config.py checks it.)
-    known = {f.name for f in fields(Agent)}
-    for name in [k for k, v in plain.get("agent", {}).items() if k not in known and isinstance(v, dict) and "_target_" in v]:
+    blocks = components(plain)
+    for where, _ in blocks:   # the agent's remedy blocks are checked against their classes' schemas below
+        if where.startswith("agent."):
+            plain["agent"].pop(where.split(".", 1)[1])
+    for name, block in unrun_remedy_settings(plain.get("agent", {})).items():
+        _check_unrun(name, block)
         plain["agent"].pop(name)
     hints = _hints(SweepConfig)
     for name in plain:
@@ -464,7 +472,12 @@ def validate(cfg: DictConfig) -> None:
         if f.name not in plain:
             raise ConfigError(f"{f.name}: missing")
         _check(plain[f.name], hints[f.name], f.name, f.metadata)
+    classes = [(where, block, check_component(where, block)) for where, block in blocks]
     _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
+    whole = OmegaConf.to_container(cfg, resolve=True)
+    for where, block, cls in classes:   # what a hook asks of the rest of the run (e.g. RECOM: a constant LR schedule)
+        if block.get("enabled", True) and hasattr(cls, "check_config"):
+            cls.check_config(where, block, whole)
 
 
 def validate_section(cfg: DictConfig, name: str) -> None:
@@ -509,15 +522,6 @@ def _cross_rules(c: DictConfig) -> None:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:
         raise ConfigError(f"agent.learner={a.learner!r}: must be one of {'|'.join(a.learners)} (conf/learner/)")
-    if a.recom.lr_min > a.recom.lr_max:
-        raise ConfigError(f"agent.recom.lr_min={a.recom.lr_min!r} > agent.recom.lr_max={a.recom.lr_max!r}: "
-                          "must be lr_min <= lr_max")
-    if a.l2.enabled and a.l2_init.enabled:
-        raise ConfigError("agent.l2.enabled=True and agent.l2_init.enabled=True: must be one of them (both set the "
-                          "optimizer's weight decay; L2 pulls toward 0, L2-Init toward theta_0)")
-    if a.recom.enabled and a.ppo.lr_schedule.value != "constant":
-        raise ConfigError(f"agent.ppo.lr_schedule={a.ppo.lr_schedule.value!r}: must be constant with "
-                          "agent.recom.enabled=True (RECOM sets the learning rate itself)")
     if a.ppo.lr_decay_timesteps is not None and a.ppo.lr_schedule.value == "constant":
         raise ConfigError(f"agent.ppo.lr_decay_timesteps={a.ppo.lr_decay_timesteps!r}: must be null with "
                           "agent.ppo.lr_schedule=constant (it is when a linear|cosine decay reaches lr_floor)")

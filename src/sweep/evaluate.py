@@ -22,11 +22,11 @@ Success (the paper defines none): the flight did not leave the bounds and the ve
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from omegaconf import DictConfig
-from sweep import metrics
+from sweep import config, metrics
 from sweep.cadence import Cadence
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
@@ -179,6 +179,14 @@ class PeriodicEvaluation(Hook):
     it), logging the current policy's ``eval/*`` at that step (with ``eval.condition=current`` also
     ``eval/segment``, the segment of the condition it flew under) and keeping them as ``latest`` = (timesteps, values)
     for hooks that read them. The final evaluation is done by ``run`` at the end."""
+
+    @dataclass
+    class Settings(config.HookSettings):   # the run's own blocks (conf/hooks/evaluation.yaml)
+        eval_cfg: config.Eval = field(default_factory=config.Eval)
+        env_cfg: config.Env = field(default_factory=config.Env)
+        wind_cfg: config.Wind = field(default_factory=config.Wind)
+        vehicle_cfg: config.Vehicle = field(default_factory=config.Vehicle)
+        total_timesteps: int = config.positive_int()
 
     def __init__(self, eval_cfg: DictConfig, env_cfg: DictConfig, wind_cfg: DictConfig | None = None,
                  vehicle_cfg: DictConfig | None = None, total_timesteps: int = 0) -> None:

@@ -9,7 +9,8 @@ the panels and fills the tables from this module only, so a panel cannot name a 
   while training (``sweep.best_policy``) under ``eval_best/*`` and ``eval_best_eval/*`` with ``SOURCE_FIELDS``.
 * ``CURVES``: training histories (step = timesteps), each a panel of a figure file ``<figure>_<wind>``, in
   panel order; ``final`` names the per-run column of its final value (mean over the last 10% of training) that
-  the summary table shows under ``title``.
+  the summary table shows under ``title``. A hook may declare more beside its class (``Hook.curves``), which the
+  report adds for the runs that ran it (``register``).
 """
 from __future__ import annotations
 
@@ -87,7 +88,7 @@ EVAL_SUCCESS = eval_key("final", "success_rate")   # also logged during training
 AT_BOUND = "recom/at_bound"
 PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
-CURVES = (
+CURVES = [
     Curve(REWARD, "Mean episode reward", "reward", always=True, final="final_reward", title="Final reward",
           digits=1),
     Curve("rollout/ep_len_mean", "Mean episode length (steps)", "episode_length", always=True),
@@ -130,7 +131,7 @@ CURVES = (
           note="Fresh network: the same fit from a newly drawn network on the same data (the reference).",
           final="final_probe_loss_fresh", title="Final probe loss, fresh net", digits=4),
     Curve(AT_BOUND),   # RECOM: 1 where an LR update was clipped to a bound (the summary's share)
-)
+]
 
 # figure file stem -> its panels, top to bottom (the first panel's metric decides whether the figure is drawn)
 FIGURES: dict[str, list[Curve]] = {}
@@ -140,6 +141,24 @@ for _curve in CURVES:
 CURVE_KEYS = [c.key for c in CURVES if c.always]
 OPTIONAL_KEYS = [c.key for c in CURVES if not c.always]
 FINALS = {c.final: c.key for c in CURVES if c.final}   # per-run column -> the curve whose final value it holds
+
+
+def register(curves) -> list[Curve]:
+    """Add the curves a hook declares beside itself (``Hook.curves``: a diagnostic's or a remedy's own readings) to
+    the ones above, each key once, so the report loads, draws and tabulates them like these; returns the new ones.
+    The report calls it with the hooks of the runs it reads (``sweep.report.load.hook_curves``)."""
+    new = []
+    for c in curves:
+        if c.key in {k.key for k in CURVES}:
+            continue
+        new.append(c)
+        CURVES.append(c)
+        if c.figure:
+            FIGURES.setdefault(c.figure, []).append(c)
+        (CURVE_KEYS if c.always else OPTIONAL_KEYS).append(c.key)
+        if c.final:
+            FINALS[c.final] = c.key
+    return new
 
 
 # ---- run tags the report and the re-evaluation split runs by ------------------------------------------------------

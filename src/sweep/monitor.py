@@ -5,8 +5,11 @@ import logging
 import math
 import time
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from sweep.config import HookSettings, positive
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord, UpdateRecord
 
@@ -23,6 +26,10 @@ def _duration(seconds: float) -> str:
 class ProgressLine(Hook):
     """At the first rollout end ``every_s`` seconds after the last line, and at the end:
     ``[label] 40,960/20,000,000 ts (0.2%) | 1,510 ts/s | ETA 3h40m``."""
+
+    @dataclass
+    class Settings(HookSettings):
+        every_s: float = positive(" (s)")
 
     def __init__(self, every_s: float = 30.0) -> None:
         self.every_s = float(every_s)
@@ -57,6 +64,8 @@ class NonFiniteError(FloatingPointError):
 class NonFiniteGuard(Hook):
     """After every update: stop the run if its loss (``train/loss``) or any parameter is not finite."""
 
+    Settings = HookSettings   # none of its own
+
     def after_update(self, learner, update: UpdateRecord) -> dict:
         if not math.isfinite(update.loss):
             raise NonFiniteError(f"train/loss={update.loss} after the update at {update.timesteps} timesteps")
@@ -72,6 +81,8 @@ class NonFiniteGuard(Hook):
 class EnvMonitor(Hook):
     """Logs the condition in force at each rollout end (``Condition.metrics``: ``env/segment``, ``env/wind_speed``,
     ``env/wind_x|y|z``, ``env/mass_factor``, ``env/rotor_efficiency_1..4``)."""
+
+    Settings = HookSettings
 
     def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
         return rollout.condition.metrics()

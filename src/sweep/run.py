@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from sweep.agents import build_learner
 from sweep import metrics, portable
 from sweep.checkpoint import JobRecord, job_key, load_checkpoint
-from sweep.config import ConfigError, settings, validate
+from sweep.config import ConfigError, one_line, settings, unrun_remedy_settings, validate
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.evaluate import evaluate, flight_conditions
 from sweep.status import read_status, write_status
@@ -97,7 +97,8 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
                    vehicle=vehicle_schedule(cfg.vehicle))
     model = build_learner(cfg.agent, env, cfg.seed, cfg.train.total_timesteps)
     run_id = previous.get("run_id") if previous else None
-    params = {**flatten(settings(cfg)), "hooks": ",".join(h.name for h in hooks)}   # the hooks that ran, in order
+    params = {**flatten(settings(cfg)), "hooks": ",".join(h.name for h in hooks),   # the hooks that ran, in order
+              "hook_classes": ",".join(f"{h.name}={type(h).__module__}.{type(h).__qualname__}" for h in hooks)}
     with TrackedRun(cfg.tracking, params, {**tags, "checkpoint_dir": str(record.dir)}, run_id=run_id) as tracked:
         record.write(run_id=tracked.run_id, status="RUNNING", uri=tracked.uri, pid=os.getpid(), host=socket.gethostname())
         write_status(out_dir, "RUNNING", run_id=tracked.run_id, checkpoint_dir=str(record.dir))
@@ -123,6 +124,8 @@ def validated_hooks(cfg: DictConfig) -> Hooks:
     """Everything that can be wrong with a config, before anything runs (a ConfigError, one line): the schema, the
     process's float mode, and the hook list; returns the run's hooks (``sweep.training.hooks.build_hooks``)."""
     validate(cfg)
+    for name in unrun_remedy_settings(OmegaConf.to_container(cfg.agent, resolve=True)):
+        log.info("agent %s does not compose remedy %s: its agent.%s.* settings are not used", cfg.agent.name, name, name)
     try:
         portable.check(cfg.train.portable)
     except ValueError as err:
@@ -130,7 +133,7 @@ def validated_hooks(cfg: DictConfig) -> Hooks:
     try:
         return build_hooks(cfg)
     except (ValueError, TypeError, InstantiationException) as err:   # a bad order, argument or class
-        raise ConfigError(f"hooks: {str(err).splitlines()[0]}") from None
+        raise ConfigError(f"hooks: {one_line(err)}") from None
 
 
 def limit_threads(cfg: DictConfig) -> None:

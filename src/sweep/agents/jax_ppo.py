@@ -178,6 +178,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         self.net_arch, self.activation, self.adam_eps = tuple(int(h) for h in net_arch), activation, float(adam_eps)
         self.layer_norm = bool(layer_norm)
         self.l2_spec: dict[str, Any] | None = None
+        self.step_transforms: list = []   # per-step remedies (add_step_transform), compiled into the update
         self._setup_model()
 
     @classmethod
@@ -227,15 +228,25 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         transforms.append(optax.scale_by_adam(b1=0.9, b2=0.999, eps=self.adam_eps))
         self._tx = optax.chain(*transforms)
         self.opt_state = self._tx.init(self.params)
-        self._update = jax.jit(partial(
-            _update, tx=self._tx, decay=decoupled, mask=mask, anchor=anchor, n_epochs=self.n_epochs,
-            batch_size=self.batch_size, ent_coef=float(self.ent_coef), vf_coef=float(self.vf_coef), nets=self._nets,
-            act=self._act, normalize_advantage=self.normalize_advantage, target_kl=self.target_kl))
+        self._decay = {"decay": decoupled, "mask": mask, "anchor": anchor}
+        self._compile_update()
         self._activations = jax.jit(partial(_hidden, nets=self._nets, act=self._act))
         self._grad_norm = jax.jit(partial(_grad_norm, nets=self._nets, act=self._act, ent_coef=float(self.ent_coef),
                                           vf_coef=float(self.vf_coef), normalize_advantage=self.normalize_advantage,
                                           clip_range=float(self.clip_range)))
         self._export_weights()
+
+    def _compile_update(self) -> None:
+        """The jitted update: the optax chain, the decoupled decay and the per-step transforms baked in."""
+        self._update = jax.jit(partial(
+            _update, tx=self._tx, **self._decay, post=tuple(self.step_transforms), n_epochs=self.n_epochs,
+            batch_size=self.batch_size, ent_coef=float(self.ent_coef), vf_coef=float(self.vf_coef), nets=self._nets,
+            act=self._act, normalize_advantage=self.normalize_advantage, target_kl=self.target_kl))
+
+    def add_step_transform(self, transform) -> None:
+        """``transform(params, jnp)`` after every Adam step from now on, inside the compiled update (re-jitted)."""
+        self.step_transforms.append(transform)
+        self._compile_update()
 
     def use_l2(self, coef: float, mode: str = "decoupled", params=("policy", "value"), biases: bool = True,
                anchor: str = "zero") -> None:
@@ -447,10 +458,11 @@ def _toward_anchor(coef: float, mask: dict[str, bool], anchor: Params) -> optax.
     return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
 
 
-def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask, anchor, n_epochs, batch_size,
+def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask, anchor, post, n_epochs, batch_size,
             ent_coef, vf_coef, nets, act, normalize_advantage, target_kl):
     """``n_epochs`` x (rollout / batch_size) minibatch steps in one ``lax.scan``; returns per-step stats and
-    whether each step's loss was computed (SB3 stops at the first step whose approx KL > 1.5 target_kl)."""
+    whether each step's loss was computed (SB3 stops at the first step whose approx KL > 1.5 target_kl). After
+    each step the ``post`` transforms (per-step remedies, ``Learner.add_step_transform``) act, in order."""
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
 
     def step(carry, idx):
@@ -467,6 +479,8 @@ def _update(params, opt_state, batch, order, lr, clip_range, *, tx, decay, mask,
             shrunk = {k: params[k] - lr * decay * (params[k] - anchor[k]) if decay and mask[k] else params[k]
                       for k in params}
         new_params = {k: shrunk[k] - lr * updates[k] for k in params}
+        for transform in post:
+            new_params = {**new_params, **transform(new_params, jnp)}
         computed = jnp.logical_not(stopped)
         if target_kl is not None:
             stop = stopped | (aux[4] > 1.5 * target_kl)

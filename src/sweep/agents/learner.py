@@ -19,6 +19,11 @@ The loop (``sweep.training.loop``) drives a learner one step at a time: ``begin`
 these for both learners on SB3's own ``OnPolicyAlgorithm`` steps. Nothing outside the learner modules reads SB3's
 loop fields (logger values, ``rollout_buffer``, ``ep_info_buffer``, ``lr_schedule``; tests/test_learner.py).
 
+Per-step remedies. ``add_step_transform(t)``: ``t`` (a ``StepTransform``) acts on the parameters after every
+optimizer step from then on, inside the update: a step hook on SB3's optimizer, traced into the jitted update on
+JAX. A remedy that must act more often than once per update (weight clipping) is one; the final policy is then the
+one the transform left, since it acts inside the last update too.
+
 Optimizer state. ``reset_optimizer(masks)`` zeroes Adam's first and second moments where a mask is True
 (the step count, hence the bias correction, is kept): what ReDo and CBP do to the weights they re-initialise.
 """
@@ -37,6 +42,16 @@ class Hidden(NamedTuple):
 
     pre: np.ndarray
     post: np.ndarray
+
+
+class StepTransform(Protocol):
+    """A per-step remedy: what it makes of the parameters right after each optimizer step (SGD step), on both
+    learners. ``params`` maps names to arrays of the learner's own kind and ``xp`` is their module (``torch`` on SB3,
+    where it runs in a step hook of the optimizer; ``jax.numpy`` on JAX, where it is traced into the compiled
+    update): a pure function of its arguments and of constants fixed before training, using only functions both
+    modules share (``xp.clip``, ``xp.where``, arithmetic). Returns the new values of the parameters it changes."""
+
+    def __call__(self, params: Mapping[str, Any], xp: Any) -> dict[str, Any]: ...
 
 
 @runtime_checkable
@@ -100,6 +115,9 @@ class Learner(Protocol):
                anchor: str = "zero") -> None:
         """Weight decay toward 0 (``anchor=zero``, L2) or toward theta_0 (``anchor=init``, L2-Init)."""
 
+    def add_step_transform(self, transform: StepTransform) -> None:
+        """Apply ``transform`` after every optimizer step from now on (a per-step remedy: weight clipping)."""
+
     def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
         """Norm of the PPO loss gradient at the current parameters, before clipping."""
 
@@ -110,4 +128,4 @@ class Learner(Protocol):
         """Restore ``learner_state`` (parameters, optimizer, the learner's generators)."""
 
 
-__all__ = ["Hidden", "Learner"]
+__all__ = ["Hidden", "Learner", "StepTransform"]

@@ -37,6 +37,7 @@ class SB3PPO(StepwiseLearning, PPO):
         model.networks = actor_critic(len(net_arch), layer_norm)
         model.rng = remedy_rng(seed)
         model._initial = model.parameter_arrays()
+        model.step_transforms = []
         return model
 
     @property
@@ -83,6 +84,27 @@ class SB3PPO(StepwiseLearning, PPO):
         self.policy.optimizer = l2_optimizer(self.policy, coef, mode, tuple(params), biases, anchors)
         names = {id(p): n for n, p in self.policy.named_parameters()}
         self.l2_decayed = sorted(names[id(p)] for p in self.policy.optimizer.param_groups[0]["params"])
+        self._hook_optimizer()
+
+    # ---- per-step remedies ---------------------------------------------------------------------------
+    def add_step_transform(self, transform) -> None:
+        """``transform(params, torch)`` after every optimizer step from now on (a step hook on SB3's optimizer)."""
+        self.step_transforms.append(transform)
+        self._hook_optimizer()
+
+    def _hook_optimizer(self) -> None:
+        """Hook the transforms onto the optimizer in force (once each: L2 builds a new one)."""
+        optimizer = self.policy.optimizer
+        if self.step_transforms and not getattr(optimizer, "_sweep_transforms", False):
+            optimizer.register_step_post_hook(lambda opt, args, kwargs: self._after_step())
+            optimizer._sweep_transforms = True
+
+    @torch.no_grad()
+    def _after_step(self) -> None:
+        params = dict(self.policy.named_parameters())
+        for transform in self.step_transforms:
+            for name, value in transform(params, torch).items():
+                params[name].copy_(value)
 
     # ---- optimizer -----------------------------------------------------------------------------------
     def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -16,13 +16,28 @@ Logs ``remedy/cbp/replaced_units`` per event and ``remedy/cbp/eligible_units``.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import List
+
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery
+from sweep.config import MISSING, HookSettings, at_least, positive_int, unit_interval
+from sweep.plasticity.remedy import NETWORKS, NetworkName, Remedy, UnitSurgery, networks_key
+
+
+@dataclass
+class CBPSettings(HookSettings):   # conf/remedy/cbp.yaml
+    replacement_rate: float = unit_interval(" (per eligible unit and minibatch step)")
+    maturity: int = at_least(0, unit=" (minibatch steps)")
+    decay: float = unit_interval()
+    networks: List[NetworkName] = networks_key()
+    batch_size: int = positive_int()
+    reset_adam: bool = MISSING
 
 
 class ContinualBackprop(Remedy):
+    Settings = CBPSettings
     name = "cbp"
     reads_activations = True
 

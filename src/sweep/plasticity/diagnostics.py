@@ -19,8 +19,12 @@ observations of that rollout:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import List
+
 import numpy as np
 
+from sweep.config import MISSING, Activation, HookSettings, key, positive_int, unit_interval
 from sweep.plasticity.dormant import (active_ratio, dead_tanh_mask, dormant_mask, dormant_ratio, pooled,
                                      saturated_ratio, signed_mean_mask, srank)
 from sweep.training.hooks import Hook
@@ -30,6 +34,18 @@ from sweep.training.records import RolloutRecord
 class PlasticityDiagnostics(Hook):
     """Reads the networks through the learner (``recent_samples``, ``hidden_activations``, ``parameter_arrays``,
     ``loss_grad_norm``), so the statistics are the same code for every learner."""
+
+    @dataclass
+    class Settings(HookSettings):   # conf/hooks/diagnostics.yaml: the plasticity.* keys
+        every_rollouts: int = positive_int()
+        tau: float = unit_interval()
+        batch_size: int = positive_int()
+        saturation: float = unit_interval()
+        srank_delta: float = unit_interval()
+        extra_taus: List[float] = key(lambda v: all(0 <= t <= 1 for t in v), "a list of numbers in [0, 1]")
+        dead_fraction: float = unit_interval()
+        signed_mean_tau: float = unit_interval()
+        activation: Activation = MISSING
 
     def __init__(self, every_rollouts: int = 1, tau: float = 0.025, batch_size: int = 1024,
                  saturation: float = 0.99, srank_delta: float = 0.01, extra_taus=(0.1,), dead_fraction: float = 0.99,

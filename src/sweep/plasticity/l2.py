@@ -13,9 +13,14 @@ penalty (coef/2)*||theta - theta_0||^2, coupled (g += coef*(theta - theta_0)) or
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any, List
+
 import torch
+from hydra.utils import get_class
 from stable_baselines3.common.policies import ActorCriticPolicy
 
+from sweep.config import MISSING, ConfigError, HookSettings, choice, non_empty, non_negative
 from sweep.training.hooks import Hook
 
 GROUPS = {
@@ -23,6 +28,14 @@ GROUPS = {
     "value": ("mlp_extractor.value_net.", "value_net."),
     "log_std": ("log_std",),
 }
+
+
+ParamGroup = choice("ParamGroup", *GROUPS)   # the words a remedy's ``params`` setting takes
+DecayMode = choice("DecayMode", "coupled", "decoupled")
+
+
+def params_key() -> Any:
+    return non_empty(f"a non-empty subset of [{', '.join(ParamGroup.__members__)}]")
 
 
 def penalized(name: str, params: list[str], biases: bool) -> bool:
@@ -72,11 +85,29 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
     return cls(groups, **kwargs)
 
 
+@dataclass
+class WeightDecaySettings(HookSettings):   # conf/remedy/l2.yaml, l2_init.yaml
+    coef: float = non_negative()
+    mode: DecayMode = MISSING
+    params: List[ParamGroup] = params_key()
+    biases: bool = MISSING
+
+
 class L2Regularization(Hook):
     """Switches the learner's L2 on when training starts (SB3: ``l2_optimizer``; JAX: the same decay in
     its optax chain, ``sweep.agents.jax_ppo``)."""
 
+    Settings = WeightDecaySettings
     anchor = "zero"
+
+    @classmethod
+    def check_config(cls, where: str, settings: dict, cfg: dict) -> None:
+        """One weight decay per run: L2 and L2-Init both set the optimizer's decay."""
+        others = [f"agent.{k}" for k, v in cfg["agent"].items() if isinstance(v, dict) and v.get("enabled", True)
+                  and f"agent.{k}" != where and issubclass(get_class(v.get("_target_", "builtins.object")), L2Regularization)]
+        if others:
+            raise ConfigError(f"{where}.enabled=True and {others[0]}.enabled=True: must be one of them (both set the "
+                              "optimizer's weight decay; L2 pulls toward 0, L2-Init toward theta_0)")
 
     def __init__(self, coef: float = 1e-3, mode: str = "decoupled", params=("policy", "value"), biases: bool = True):
         self.coef, self.mode, self.params, self.biases = float(coef), mode, tuple(params), bool(biases)

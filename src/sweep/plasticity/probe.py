@@ -22,11 +22,14 @@ generator, so the learner's weights, optimizer state and every RNG are untouched
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import HIDDEN_GAIN, LAYER_NORM_EPS, adam_kwargs, fresh_parameters, orthogonal
+from sweep.config import MISSING, Activation, HookSettings, at_least, positive, positive_int
 from sweep.training.hooks import Hook
 from sweep.training.records import Condition
 
@@ -78,6 +81,16 @@ def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batc
 class PlasticityProbe(Hook):
     """Runs ``probe_fit`` at the first rollout end under each new condition (``at_change``) and after the last
     update (``at_end``), on the learner's ``observations`` most recent observations; ``steps=0``: never."""
+
+    @dataclass
+    class Settings(HookSettings):   # conf/hooks/probe.yaml: the plasticity.probe.* keys
+        steps: int = at_least(0, unit=" (0: no probe)")
+        batch_size: int = positive_int()
+        lr: float = positive()
+        observations: int = positive_int()
+        activation: Activation = MISSING
+        seed: int = at_least(0)
+        fresh: bool = MISSING
 
     def __init__(self, steps: int = 500, batch_size: int = 256, lr: float = 1e-3, observations: int = 1024,
                  activation: str = "tanh", seed: int = 0, fresh: bool = True) -> None:

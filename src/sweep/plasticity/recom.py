@@ -32,10 +32,12 @@ The loss of each update comes from its ``UpdateRecord`` (``mean_loss``), the epi
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
 from sweep.cadence import Cadence
+from sweep.config import MISSING, ConfigError, HookSettings, choice, non_negative, positive, positive_int
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord, UpdateRecord
 
@@ -58,7 +60,36 @@ def recom_lr(lr: float, gradient: float, gain: float, lr_min: float, lr_max: flo
     return new, new != unclipped
 
 
+RecomPrevious = choice("RecomPrevious", "last_update", "shifted")
+RecomGradient = choice("RecomGradient", "absolute", "relative")
+RecomReward = choice("RecomReward", "return", "per_step")
+
+
+@dataclass
+class RecomSettings(HookSettings):   # conf/remedy/recom.yaml
+    interval: int = positive_int(" (timesteps)")
+    window: int = positive_int(" (episodes)")
+    gain: float = non_negative()
+    lr_min: float = positive()
+    lr_max: float = positive()
+    previous: RecomPrevious = MISSING
+    gradient: RecomGradient = MISSING
+    reward: RecomReward = MISSING
+
+
 class Recom(Hook):
+    Settings = RecomSettings
+
+    @classmethod
+    def check_config(cls, where: str, settings: dict, cfg: dict) -> None:
+        if settings["lr_min"] > settings["lr_max"]:
+            raise ConfigError(f"{where}.lr_min={settings['lr_min']!r} > {where}.lr_max={settings['lr_max']!r}: "
+                              "must be lr_min <= lr_max")
+        schedule = cfg["agent"]["ppo"]["lr_schedule"]
+        if schedule != "constant":
+            raise ConfigError(f"agent.ppo.lr_schedule={schedule!r}: must be constant with {where}.enabled=True "
+                              "(RECOM sets the learning rate itself)")
+
     def __init__(self, interval: int = 40960, window: int = 10, gain: float = 5e-6,
                  lr_min: float = 1e-5, lr_max: float = 1e-3, previous: str = "last_update",
                  gradient: str = "absolute", reward: str = "return") -> None:

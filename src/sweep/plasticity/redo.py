@@ -11,14 +11,28 @@ reset. Logs ``remedy/redo/reset_units`` (both networks) and per layer ``remedy/r
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import List
+
 import numpy as np
 
 from sweep.agents.learner import Learner
+from sweep.config import MISSING, HookSettings, positive_int, unit_interval
 from sweep.plasticity.dormant import dormant_mask
-from sweep.plasticity.remedy import NETWORKS, Remedy, UnitSurgery
+from sweep.plasticity.remedy import NETWORKS, NetworkName, Remedy, UnitSurgery, every_updates_key, networks_key
+
+
+@dataclass
+class ReDoSettings(HookSettings):   # conf/remedy/redo.yaml
+    every_updates: int = every_updates_key()
+    tau: float = unit_interval()
+    networks: List[NetworkName] = networks_key()
+    batch_size: int = positive_int()
+    reset_adam: bool = MISSING
 
 
 class ReDo(Remedy):
+    Settings = ReDoSettings
     name = "redo"
     reads_activations = True
 

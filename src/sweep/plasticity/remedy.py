@@ -13,15 +13,28 @@ the moment of the reset; optionally Adam's moments of exactly those entries are 
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import HIDDEN_GAIN, Network, orthogonal
+from sweep.config import choice, non_empty, positive_int
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord, UpdateRecord
 
 
 NETWORKS = ("policy", "value")
+# the words a remedy's settings use for what it acts on (its schema: ``Remedy.Settings`` and the subclasses' own)
+NetworkName = choice("NetworkName", *NETWORKS)
+
+
+def networks_key() -> Any:
+    return non_empty(f"a non-empty subset of [{', '.join(NetworkName.__members__)}]")
+
+
+def every_updates_key() -> Any:
+    return positive_int(" (updates)")
 
 
 class UnitSurgery:

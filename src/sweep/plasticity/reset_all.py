@@ -19,11 +19,13 @@ from __future__ import annotations
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import fresh_parameters
+from sweep.config import HookSettings
 from sweep.training.hooks import Hook
 from sweep.training.records import Condition
 
 
 class ResetAll(Hook):
+    Settings = HookSettings   # no settings of its own
     def __init__(self) -> None:
         self.resets = 0
 

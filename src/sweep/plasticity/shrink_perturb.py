@@ -11,15 +11,29 @@ is left as it is. Logs ``remedy/shrink_perturb/weight_norm_before`` and ``_after
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import List
+
 import numpy as np
 
 from sweep.agents.learner import Learner
 from sweep.agents.networks import fresh_parameters
-from sweep.plasticity.l2 import penalized
-from sweep.plasticity.remedy import Remedy
+from sweep.config import MISSING, HookSettings, non_negative, unit_interval
+from sweep.plasticity.l2 import ParamGroup, params_key, penalized
+from sweep.plasticity.remedy import Remedy, every_updates_key
+
+
+@dataclass
+class ShrinkPerturbSettings(HookSettings):   # conf/remedy/shrink_perturb.yaml
+    every_updates: int = every_updates_key()
+    shrink: float = unit_interval()
+    perturb: float = non_negative()
+    params: List[ParamGroup] = params_key()
+    biases: bool = MISSING
 
 
 class ShrinkPerturb(Remedy):
+    Settings = ShrinkPerturbSettings
     name = "shrink_perturb"
 
     def __init__(self, every_updates: int = 200, shrink: float = 0.8, perturb: float = 0.2,

@@ -47,7 +47,9 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     except MlflowException as err:
         raise load.ReportError(f"cannot read the MLflow store {uri}: {str(err).splitlines()[0]}") from err
     runs, notes = loaded.runs, loaded.notes
-    for note in notes:
+    curves, hook_notes = load.hook_curves(runs)
+    metrics.register(curves)   # what the runs' own hooks log (a diagnostic's curves), drawn like the report's own
+    for note in notes + hook_notes:
         print(f"sweep.report: note: {note}")
     if runs.empty:
         where = f" of sweep {sweep!r}" if sweep else ""

@@ -24,6 +24,7 @@ import pandas as pd
 
 os.environ.setdefault("MLFLOW_DISABLE_TELEMETRY", "true")
 os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
+from hydra.utils import get_class  # noqa: E402
 from mlflow.exceptions import MlflowException  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
@@ -199,6 +200,7 @@ def read_runs(client: MlflowClient, exp_id: str, sweep: str | None = None, by: l
             row.update({metrics.eval_key("final", f.name): np.nan for f in metrics.EVAL_FIELDS})
         row.update({key: cell[key] for key in by})
         row["learner"], row["logged"] = learner, frozenset(logged)
+        row["hook_classes"] = params.get("hook_classes")   # the hooks it ran (their curves: hook_curves)
         rows.append(row)
     if available:
         check_keys(list(by), available)
@@ -319,9 +321,24 @@ def segment_labels(speeds: list[float], directions: str | None, vehicles: str | 
     return labels
 
 
-def load_histories(client: MlflowClient, runs: pd.DataFrame,
-                   keys=metrics.CURVE_KEYS + metrics.OPTIONAL_KEYS) -> pd.DataFrame:
-    """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value)."""
+def hook_curves(runs: pd.DataFrame) -> tuple[list[metrics.Curve], list[str]]:
+    """The curves the runs' hooks declare beside their classes (``Hook.curves``; each run's param ``hook_classes``:
+    ``name=module.Class,...``), and a note for a class this environment cannot import."""
+    targets = sorted({item.split("=", 1)[1] for value in runs.get("hook_classes", pd.Series(dtype=object))
+                      if isinstance(value, str) for item in value.split(",") if "=" in item})
+    curves, notes = [], []
+    for target in targets:
+        try:
+            curves += list(getattr(get_class(target), "curves", ()))
+        except Exception as err:  # noqa: BLE001 - a hook of another code version or a module not on the path
+            notes.append(f"hook class {target} cannot be imported here ({type(err).__name__}): its curves are not drawn")
+    return curves, notes
+
+
+def load_histories(client: MlflowClient, runs: pd.DataFrame, keys: list[str] | None = None) -> pd.DataFrame:
+    """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value). ``keys``: the
+    report's curves (``metrics``) by default."""
+    keys = metrics.CURVE_KEYS + metrics.OPTIONAL_KEYS if keys is None else keys
     frames = []
     for run_id, logged in zip(runs["run_id"], runs["logged"]):
         for key in [k for k in keys if k in logged]:

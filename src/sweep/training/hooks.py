@@ -38,11 +38,25 @@ Metrics = dict[str, float]
 
 
 class Hook:
-    """Base class: every moment does nothing and logs nothing; no state."""
+    """Base class: every moment does nothing and logs nothing; no state.
+
+    What a hook built from config declares beside itself (README "Add a remedy"):
+      ``Settings``      its schema: a ``sweep.config.HookSettings`` dataclass, one field per ``__init__`` argument
+                        (required: a block whose class has none is a config error);
+      ``check_config``  rules across keys, raising ``sweep.config.ConfigError`` before training (optional);
+      ``curves``        the ``sweep.metrics.Curve``s of what it logs, which the report draws (optional).
+    """
 
     name: str = ""
     requires: tuple[str, ...] = ()
     runs_last: bool = False
+    Settings: type | None = None
+    curves: tuple = ()
+
+    @classmethod
+    def check_config(cls, where: str, settings: dict, cfg: dict) -> None:
+        """Raise ``ConfigError`` if this hook cannot run with the resolved config ``cfg`` (its block at ``where``,
+        e.g. ``agent.recom``, holding ``settings``)."""
 
     def setup(self, learner: Learner, training: Training) -> None:
         pass
