@@ -255,13 +255,14 @@ def test_a_remedy_setting_given_to_every_agent_of_a_sweep_is_checked_and_dropped
     from sweep.checkpoint import job_key
     from omegaconf import OmegaConf
 
-    from sweep.config import unrun_remedy_settings
+    from sweep.config import switch_off_unrun_remedy_settings, unrun_remedy_settings
 
     cfg = compose_cfg(["agent=ppo", "++agent.recom.interval=512"])
     validate(cfg)
     assert list(unrun_remedy_settings(OmegaConf.to_container(cfg.agent))) == ["recom"] and remedies_of(cfg) == []
     assert [type(h).__name__ for h in build_hooks(cfg)] == DEFAULT_HOOKS
     assert job_key(cfg, "sqlite:///x.db") != job_key(compose_cfg(["agent=ppo", "++agent.recom.interval=1024"]), "sqlite:///x.db")
+    assert switch_off_unrun_remedy_settings(cfg) == ["recom"] and cfg.agent.recom.enabled is False
     for override, message in (("++agent.recom.interval=0", "agent.recom.interval=0: must be an integer > 0"),
                               ("++agent.recom.intervall=5", "agent.recom.intervall: not a config key"),
                               ("++agent.recomm.interval=5", "agent.recomm: not a config key")):

@@ -2,14 +2,13 @@
 list built from config and its errors, and a researcher's own diagnostic added with one class and one YAML."""
 from __future__ import annotations
 
-import textwrap
 
 import numpy as np
 import pytest
 from mlflow.tracking import MlflowClient
 from stable_baselines3.common.logger import KVWriter, Logger
 
-from conftest import TINY, compose_cfg, run_cli, train_with
+from conftest import TINY, compose_cfg, train_with
 from sweep.agents import build_learner
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.run import run
@@ -113,41 +112,3 @@ def test_hooks_need_distinct_names_and_the_checkpointer_acts_last():
     assert names[:2] == ["l2", "recom"] and names[-1] == "checkpointer" and "progress" in names
     with pytest.raises(ValueError, match="distinct"):
         Hooks([Recorder(), Recorder()])
-
-
-def test_a_new_diagnostic_is_one_class_and_one_yaml(store, tmp_path, monkeypatch):
-    """What the README shows: a class (a Hook returning its metrics) and conf/hooks/<name>.yaml; the run, from
-    the command line with 'hooks=[default,<name>]', logs the metric at the rollouts the class chose."""
-    (tmp_path / "lab").mkdir()
-    (tmp_path / "lab" / "my_diagnostics.py").write_text(textwrap.dedent('''
-        import numpy as np
-        from sweep.training.hooks import Hook
-
-
-        class WeightNormOfPolicyHead(Hook):
-            """The norm of the policy head's weights, every `every` rollouts."""
-
-            def __init__(self, every: int = 1) -> None:
-                self.every = every
-
-            def after_rollout(self, learner, rollout):
-                if rollout.index % self.every:
-                    return {}
-                head = learner.parameter_arrays()["action_net.weight"]
-                return {"custom/head_norm": float(np.linalg.norm(head))}
-        '''))
-    (tmp_path / "conf" / "hooks").mkdir(parents=True)
-    (tmp_path / "conf" / "hooks" / "head_norm.yaml").write_text(textwrap.dedent('''
-        head_norm:
-          _target_: my_diagnostics.WeightNormOfPolicyHead
-          every: 2
-        '''))
-    monkeypatch.setenv("PYTHONPATH", str(tmp_path / "lab"))
-    proc = run_cli(["hooks=[default,head_norm]", f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
-                    "train.total_timesteps=2048", "agent.ppo.n_steps=512", "eval.episodes=2", "agent.learner=jax"],
-                   store, tmp_path)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    client = MlflowClient(store)
-    (r,) = client.search_runs([e.experiment_id for e in client.search_experiments()])
-    history = client.get_metric_history(r.info.run_id, "custom/head_norm")
-    assert sorted(m.step for m in history) == [1024, 2048] and all(m.value > 0 for m in history)

@@ -30,9 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = "report-test"
 HAND = "report-hand"  # hand-logged runs: no training, known histories
 # ppo and recom_l2 x two L2 coefficients x two seeds: the PPO runs of either coefficient are the same condition
-# (L2 is off in PPO), RECOM logs recom/at_bound, eval.every_timesteps gives evaluation curves. The SB3 learner:
+# (PPO has no L2: its agent.l2 settings are switched off, sweep.config.switch_off_unrun_remedy_settings), RECOM logs recom/at_bound, eval.every_timesteps gives evaluation curves. The SB3 learner:
 # at this size faster than JAX, whose compilation takes ~10 s per job.
-SWEEP = ["-m", "agent=ppo,recom_l2", "agent.l2.coef=0.001,0.01", "seed=0,1", "wind=paper",
+SWEEP = ["-m", "agent=ppo,recom_l2", "++agent.l2.coef=0.001,0.01", "seed=0,1", "wind=paper",
          "train.total_timesteps=1536", "agent.ppo.n_steps=512", "wind.segment_steps=512", "++agent.recom.interval=512",
          "eval.episodes=2", "eval.every_timesteps=512", "tracking.log_model=false", "train.progress_every_s=1000",
          f"tracking.experiment={EXPERIMENT}", "hydra.launcher.n_jobs=2"]

@@ -25,7 +25,7 @@ from enum import Enum
 from typing import Any, Callable, Dict, List, Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
 
 
 class ConfigError(ValueError):
@@ -430,10 +430,20 @@ def unrun_remedy_settings(agent: dict) -> dict[str, dict]:
     """``agent.<name>`` blocks without a ``_target_`` where ``name`` is a remedy of conf/remedy/ the agent does not
     compose: settings given to every agent of a sweep (``++agent.recom.interval=512`` with ``agent=ppo,recom_l2``)
     that this one does not run. Checked against that remedy's schema (``validate``), kept in the config (so two jobs
-    given different such settings stay two jobs: ``sweep.checkpoint.job_key``) and never built."""
+    given different such settings stay two jobs: ``sweep.checkpoint.job_key``), never built, and marked
+    ``enabled: false`` by ``switch_off_unrun_remedy_settings`` (the report then reads them as not applying)."""
     known = {f.name for f in fields(Agent)}
     return {k: v for k, v in agent.items() if k not in known and isinstance(v, dict) and "_target_" not in v
             and (REMEDY_GROUP / f"{k}.yaml").exists()}
+
+
+def switch_off_unrun_remedy_settings(cfg: DictConfig) -> list[str]:
+    """Mark (in place) the ``unrun_remedy_settings`` of the agent ``enabled: false``; returns their names."""
+    names = list(unrun_remedy_settings(OmegaConf.to_container(cfg.agent, resolve=True)))
+    for name in names:
+        with open_dict(cfg.agent[name]):
+            cfg.agent[name].enabled = False
+    return names
 
 
 def _check_unrun(name: str, block: dict) -> None:

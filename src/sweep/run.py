@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from sweep.agents import build_learner
 from sweep import metrics, portable
 from sweep.checkpoint import JobRecord, job_key, load_checkpoint
-from sweep.config import ConfigError, one_line, settings, unrun_remedy_settings, validate
+from sweep.config import ConfigError, one_line, settings, switch_off_unrun_remedy_settings, validate
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.evaluate import evaluate, flight_conditions
 from sweep.status import read_status, write_status
@@ -124,7 +124,7 @@ def validated_hooks(cfg: DictConfig) -> Hooks:
     """Everything that can be wrong with a config, before anything runs (a ConfigError, one line): the schema, the
     process's float mode, and the hook list; returns the run's hooks (``sweep.training.hooks.build_hooks``)."""
     validate(cfg)
-    for name in unrun_remedy_settings(OmegaConf.to_container(cfg.agent, resolve=True)):
+    for name in switch_off_unrun_remedy_settings(cfg):
         log.info("agent %s does not compose remedy %s: its agent.%s.* settings are not used", cfg.agent.name, name, name)
     try:
         portable.check(cfg.train.portable)

@@ -24,7 +24,7 @@ from typing import Any, List, Mapping
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.config import MISSING, HookSettings, positive
+from sweep.config import HookSettings, positive
 from sweep.metrics import Curve
 from sweep.plasticity.remedy import NETWORKS, NetworkName, Remedy, every_updates_key, networks_key
 
