@@ -250,8 +250,8 @@ def test_a_hook_block_is_checked_by_its_own_schema(override, expected):
 
 def test_a_remedy_setting_given_to_every_agent_of_a_sweep_is_checked_and_dropped_where_the_agent_lacks_it():
     """`python -m sweep -m agent=ppo,recom_l2 ++agent.recom.interval=512`: PPO gets a recom block without a _target_;
-    it is checked against RECOM's schema (a typo or a bad value is an error) and not run; it stays in the job key, so
-    PPO given two such values is two jobs, as a sweep over them asks (not one checkpoint written by both)."""
+    it is checked against RECOM's schema (a typo or a bad value is an error), not run, switched off, and not in the job
+    key: PPO given two such values is one job (a sweep that lists it twice runs it once: test_run_options)."""
     from sweep.checkpoint import job_key
     from omegaconf import OmegaConf
 
@@ -261,11 +261,14 @@ def test_a_remedy_setting_given_to_every_agent_of_a_sweep_is_checked_and_dropped
     validate(cfg)
     assert list(unrun_remedy_settings(OmegaConf.to_container(cfg.agent))) == ["recom"] and remedies_of(cfg) == []
     assert [type(h).__name__ for h in build_hooks(cfg)] == DEFAULT_HOOKS
-    assert job_key(cfg, "sqlite:///x.db") != job_key(compose_cfg(["agent=ppo", "++agent.recom.interval=1024"]), "sqlite:///x.db")
+    assert job_key(cfg, "sqlite:///x.db") == job_key(compose_cfg(["agent=ppo", "++agent.recom.interval=1024"]),
+                                                     "sqlite:///x.db") == job_key(compose_cfg(["agent=ppo"]), "sqlite:///x.db")
     assert switch_off_unrun_remedy_settings(cfg) == ["recom"] and cfg.agent.recom.enabled is False
     for override, message in (("++agent.recom.interval=0", "agent.recom.interval=0: must be an integer > 0"),
                               ("++agent.recom.intervall=5", "agent.recom.intervall: not a config key"),
-                              ("++agent.recomm.interval=5", "agent.recomm: not a config key")):
+                              ("++agent.recomm.interval=5", "agent.recomm: not a config key"),
+                              ("++agent.recom.enabled=true", "agent.recom.enabled=True: agent settings alone do not "
+                                                             "compose a remedy; must be composed: +remedy@agent.recom=recom")):
         with pytest.raises(ConfigError, match="^" + re.escape(message)):
             validate(compose_cfg(["agent=ppo", override]))
 

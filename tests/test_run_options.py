@@ -88,3 +88,20 @@ def test_nan_guard_ends_the_run_failed(learner, store, tmp_path, monkeypatch, ca
     assert [(r.info.status, r.data.tags["failure_reason"], r.data.tags["learner"]) for r in runs] == \
            [("FAILED", reason, learner)]
     assert load_checkpoint(read_status(out)["checkpoint_dir"] + "/checkpoint.pt")["num_timesteps"] == 512
+
+
+def test_a_sweep_that_lists_one_job_twice_runs_it_once(tmp_path):
+    """`agent=ppo ++agent.recom.interval=512,1024`: settings PPO does not run, so both jobs are the same job (one key).
+    Run concurrently (two joblib workers), the second waits for the first's lock on the job and reports its run:
+    one MLflow run, both jobs FINISHED with its id, no checkpoint written by two processes."""
+    from conftest import run_cli
+
+    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    proc = run_cli(["-m", "agent=ppo", "++agent.recom.interval=512,1024", *TINY, "hydra.launcher.n_jobs=2",
+                    f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    client = MlflowClient(uri)
+    (r,) = client.search_runs([e.experiment_id for e in client.search_experiments()])
+    assert r.info.status == "FINISHED" and r.data.params["agent.recom.enabled"] == "False"
+    statuses = [read_status(tmp_path / "sweep" / str(job)) for job in (0, 1)]
+    assert [(s["status"], s["run_id"]) for s in statuses] == [("FINISHED", r.info.run_id)] * 2

@@ -14,19 +14,21 @@ records the MLflow run id and whether training/evaluation completed.
 """
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
 import random
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from sweep.config import ConfigError, HookSettings, positive_int, settings
+from sweep.config import ConfigError, HookSettings, positive_int, remedy_blocks, runs, settings, unrun_remedy_settings
 from sweep.status import read_json, update_json
 from sweep.training.hooks import Hook
 
@@ -35,20 +37,21 @@ if TYPE_CHECKING:
 
 
 def _running(blocks: dict) -> dict:
-    """The hook blocks that run (``enabled`` not false), each without its ``enabled`` flag."""
-    return {name: {k: v for k, v in block.items() if k != "enabled"} for name, block in blocks.items()
-            if block.get("enabled", True)}
+    """The hook blocks that run (``config.runs``), each without its ``enabled`` flag."""
+    return {name: {k: v for k, v in block.items() if k != "enabled"} for name, block in blocks.items() if runs(block)}
 
 
 def job_key(cfg: DictConfig, uri: str) -> str:
     """Stable id of a job: what it runs, and the tracking store. That is its resolved settings (``config.settings``)
     without ``resume`` and the progress line's period; of the agent's remedy blocks only those enabled (a remedy the
     job does not run, or one added to the code since, does not enter it); its hooks in order with their resolved
-    settings (a run with another hook list, or a hook set otherwise, is another job)."""
+    settings (a run with another hook list, or a hook set otherwise, is another job). Settings of a remedy the agent
+    does not compose (``config.unrun_remedy_settings``) are not in it either: such jobs are the same job, and a
+    sweep that lists it twice runs it once (``JobRecord.hold``)."""
     container = settings(cfg)
     agent = container.get("agent", {})
-    remedies = {k: v for k, v in agent.items() if isinstance(v, dict) and "_target_" in v}
-    for name in remedies:
+    remedies = remedy_blocks(agent)
+    for name in [*remedies, *unrun_remedy_settings(agent)]:
         agent.pop(name)
     agent.update(_running(remedies))
     hooks = _running(OmegaConf.to_container(cfg.get("hooks", OmegaConf.create({})), resolve=True))
@@ -73,6 +76,23 @@ class JobRecord:
 
     def write(self, **fields: Any) -> None:
         update_json(self.path, **fields)
+
+    @contextmanager
+    def hold(self, waiting: Callable[[], None] = lambda: None) -> Iterator[None]:
+        """Hold the job for this process: an exclusive lock on ``job.lock`` (``fcntl.flock``, released when the
+        process ends, however). Another process holding it runs the same job (a sweep that lists one job twice,
+        settings it does not run being all that differ): ``waiting`` is called, and this one waits for it."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with open(self.dir / "job.lock", "w") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                waiting()
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 FORMAT = 3   # 2: hooks by name and the loop's pending metrics (issue 31); 3: the condition's wind vector and vehicle

@@ -415,11 +415,22 @@ def component_class(block: dict, where: str) -> type:
         raise ConfigError(f"{where}._target_={target!r}: cannot be imported ({one_line(err.__cause__ or err)})") from None
 
 
+def remedy_blocks(agent: dict) -> dict[str, dict]:
+    """The agent's remedy blocks, in config order: every ``agent.<name>`` block with a ``_target_`` (plain dicts of
+    the resolved config; the one rule the schema, the hook builder and the job key share)."""
+    known = {f.name for f in fields(Agent)}
+    return {k: v for k, v in agent.items() if k not in known and isinstance(v, dict) and "_target_" in v}
+
+
+def runs(block: dict) -> bool:
+    """Whether a remedy or hook block runs: ``enabled`` (``HookSettings``, default true) is not false."""
+    return block.get("enabled", True) is not False
+
+
 def components(plain: dict) -> list[tuple[str, dict]]:
-    """Every hook block of a resolved config, by where it sits: the agent's remedies (``agent.<name>`` blocks with a
-    ``_target_``), then ``hooks.<name>``."""
-    agent = [(f"agent.{k}", v) for k, v in plain.get("agent", {}).items() if isinstance(v, dict) and "_target_" in v
-             and k not in {f.name for f in fields(Agent)}]
+    """Every hook block of a resolved config, by where it sits: the agent's remedies (``remedy_blocks``), then
+    ``hooks.<name>``."""
+    agent = [(f"agent.{k}", v) for k, v in remedy_blocks(plain.get("agent", {})).items()]
     return agent + [(f"hooks.{k}", v) for k, v in (plain.get("hooks") or {}).items() if isinstance(v, dict)]
 
 
@@ -429,9 +440,9 @@ REMEDY_GROUP = Path(__file__).resolve().parents[2] / "conf" / "remedy"   # the r
 def unrun_remedy_settings(agent: dict) -> dict[str, dict]:
     """``agent.<name>`` blocks without a ``_target_`` where ``name`` is a remedy of conf/remedy/ the agent does not
     compose: settings given to every agent of a sweep (``++agent.recom.interval=512`` with ``agent=ppo,recom_l2``)
-    that this one does not run. Checked against that remedy's schema (``validate``), kept in the config (so two jobs
-    given different such settings stay two jobs: ``sweep.checkpoint.job_key``), never built, and marked
-    ``enabled: false`` by ``switch_off_unrun_remedy_settings`` (the report then reads them as not applying)."""
+    that this one does not run. Checked against that remedy's schema (``validate``; ``enabled=true`` there is an
+    error: composing a remedy is ``+remedy@agent.<name>=<name>``), never built, marked ``enabled: false`` by
+    ``switch_off_unrun_remedy_settings`` (the report reads them as not applying) and left out of the job key."""
     known = {f.name for f in fields(Agent)}
     return {k: v for k, v in agent.items() if k not in known and isinstance(v, dict) and "_target_" not in v
             and (REMEDY_GROUP / f"{k}.yaml").exists()}
@@ -449,6 +460,9 @@ def switch_off_unrun_remedy_settings(cfg: DictConfig) -> list[str]:
 def _check_unrun(name: str, block: dict) -> None:
     import yaml
 
+    if block.get("enabled") is True:
+        raise ConfigError(f"agent.{name}.enabled=True: agent settings alone do not compose a remedy; must be "
+                          f"composed: +remedy@agent.{name}={name} (or an agent whose defaults list it)")
     check_component(f"agent.{name}", {**yaml.safe_load((REMEDY_GROUP / f"{name}.yaml").read_text()), **block})
 
 

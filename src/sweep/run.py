@@ -87,6 +87,13 @@ def run(cfg: DictConfig, out_dir: Path) -> str:
     tags = job_tags(cfg)
 
     record = job_record(cfg)
+    with record.hold(waiting=lambda: log.info("[%s] the same job runs in another process (listed twice in this "
+                                              "sweep?): waiting for it, then reporting its run", tags["run_name"])):
+        return train_and_track(cfg, out_dir, hooks, tags, record)
+
+
+def train_and_track(cfg: DictConfig, out_dir: Path, hooks: Hooks, tags: dict[str, str], record: JobRecord) -> str:
+    """``run`` once the job is held: skip it if finished, else train (continuing its checkpoint), evaluate, track."""
     previous = {} if str(cfg.resume) == "never" else record.read()
     if previous.get("status") == "FINISHED":
         log.info("[%s] already complete (MLflow run %s); not retrained", tags["run_name"], previous["run_id"])

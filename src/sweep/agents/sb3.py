@@ -40,6 +40,10 @@ class SB3PPO(StepwiseLearning, PPO):
         model.step_transforms = []
         return model
 
+    def _excluded_save_params(self) -> list[str]:
+        """Not in model.zip: the per-step remedies (the hooks hold them; a saved policy loads without them)."""
+        return [*super()._excluded_save_params(), "step_transforms"]
+
     @property
     def minibatches_per_update(self) -> int:
         return self.n_epochs * -(-self.n_steps * self.n_envs // self.batch_size)

@@ -12,7 +12,7 @@ and ``log_std`` are not clipped (the authors' networks have no LayerNorm; a scal
 kappa/sqrt(64) at once).
 
 A per-step remedy (``Learner.add_step_transform``): the clip runs inside every update, after each Adam step, on
-both learners, so the final policy is within the bounds too. Every ``every_updates`` updates it logs
+both learners, so the final policy is within the bounds too. Every ``log_every_updates`` updates it logs
 ``remedy/weight_clip/at_bound``: the share of the clipped parameters' entries that sit at their bound.
 """
 from __future__ import annotations
@@ -24,27 +24,29 @@ from typing import Any, List, Mapping
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.config import HookSettings, positive
+from sweep.config import MISSING, HookSettings, positive
 from sweep.metrics import Curve
 from sweep.plasticity.remedy import NETWORKS, NetworkName, Remedy, every_updates_key, networks_key
 
-AT_BOUND = "remedy/weight_clip/at_bound"
+AT_CLIP_BOUND = "remedy/weight_clip/at_bound"
 
 
 @dataclass
 class WeightClipSettings(HookSettings):   # conf/remedy/weight_clip.yaml
     kappa: float = positive(" (times each layer's init bound 1/sqrt(fan_in))")
     networks: List[NetworkName] = networks_key()
-    every_updates: int = every_updates_key()
+    heads: bool = MISSING
+    log_every_updates: int = every_updates_key()
 
 
-def init_bounds(learner: Learner, networks: tuple[str, ...]) -> dict[str, float]:
-    """s_l = 1/sqrt(fan_in) for the weight and the bias of every Linear layer (hidden and head) of ``networks``."""
+def init_bounds(learner: Learner, networks: tuple[str, ...], heads: bool = True) -> dict[str, float]:
+    """s_l = 1/sqrt(fan_in) for the weight and the bias of every Linear layer of ``networks``: the hidden layers, and
+    the output layers (action and value head) if ``heads``."""
     shapes = {k: v.shape for k, v in learner.initial_parameters().items()}
     bounds = {}
     for net in learner.networks:
         if net.name in networks:
-            for layer in net.linears:
+            for layer in net.linears if heads else net.hidden:
                 s = 1.0 / math.sqrt(shapes[f"{layer}.weight"][1])
                 bounds[f"{layer}.weight"] = bounds[f"{layer}.bias"] = s
     return bounds
@@ -53,16 +55,16 @@ def init_bounds(learner: Learner, networks: tuple[str, ...]) -> dict[str, float]
 class WeightClip(Remedy):
     Settings = WeightClipSettings
     name = "weight_clip"
-    curves = (Curve(AT_BOUND, "Weights at the\nclip bound (%)", "weight_clip", 100.0, percent=True,
+    curves = (Curve(AT_CLIP_BOUND, "Weights at the\nclip bound (%)", "weight_clip", 100.0, percent=True,
                     final="final_weights_at_bound", title="Final at clip bound (%)"),)
 
-    def __init__(self, kappa: float = 2.0, networks=NETWORKS, every_updates: int = 1) -> None:
-        super().__init__(every_updates)
-        self.kappa, self.networks = float(kappa), tuple(networks)
+    def __init__(self, kappa: float = 2.0, networks=NETWORKS, heads: bool = False, log_every_updates: int = 1) -> None:
+        super().__init__(every_updates=log_every_updates)   # act() only logs: the clip acts at every step
+        self.kappa, self.networks, self.heads = float(kappa), tuple(networks), bool(heads)
         self.bounds: dict[str, float] = {}
 
     def setup(self, learner: Learner, training) -> None:
-        self.bounds = {k: self.kappa * s for k, s in init_bounds(learner, self.networks).items()}
+        self.bounds = {k: self.kappa * s for k, s in init_bounds(learner, self.networks, self.heads).items()}
         learner.add_step_transform(self.clip)
 
     def clip(self, params: Mapping[str, Any], xp: Any) -> dict[str, Any]:

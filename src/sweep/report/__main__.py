@@ -36,6 +36,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
+    from sweep.config import one_line
     from sweep.report import (conditions, figures, highlight as emphasis, intervals, load, relearning, stats, style,
                               tables)
 
@@ -45,7 +46,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         exp_id, exp_name = load.pick_experiment(client, experiment)
         loaded = load.read_runs(client, exp_id, sweep, by, exp_name)
     except MlflowException as err:
-        raise load.ReportError(f"cannot read the MLflow store {uri}: {str(err).splitlines()[0]}") from err
+        raise load.ReportError(f"cannot read the MLflow store {uri}: {one_line(err)}") from err
     runs, notes = loaded.runs, loaded.notes
     curves, hook_notes = load.hook_curves(runs)
     metrics.register(curves)   # what the runs' own hooks log (a diagnostic's curves), drawn like the report's own

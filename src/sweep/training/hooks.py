@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Iterator, Mapping
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from sweep.config import remedy_blocks, runs
 from sweep.training.records import Condition, RolloutRecord, UpdateRecord
 
 if TYPE_CHECKING:
@@ -135,7 +136,7 @@ class Hooks:
 
 
 def _build(name: str, spec: DictConfig) -> Hook | None:
-    if not spec.get("enabled", True):
+    if not runs(spec):
         return None
     plain = OmegaConf.to_container(spec, resolve=True)   # resolved where it sits: its interpolations reach the root
     plain.pop("enabled", None)
@@ -147,9 +148,9 @@ def _build(name: str, spec: DictConfig) -> Hook | None:
 
 
 def remedy_hooks(agent: DictConfig) -> list[Hook]:
-    """The agent's enabled remedies: every ``agent.<key>`` block with a ``_target_``, in config order."""
-    specs = [(k, v) for k, v in agent.items() if isinstance(v, DictConfig) and "_target_" in v]
-    return [h for h in (_build(k, v) for k, v in specs) if h is not None]
+    """The agent's enabled remedies (``sweep.config.remedy_blocks``), in config order."""
+    names = remedy_blocks(OmegaConf.to_container(agent, resolve=True))
+    return [h for h in (_build(k, agent[k]) for k in names) if h is not None]
 
 
 def build_hooks(cfg: DictConfig) -> Hooks:
