@@ -168,6 +168,17 @@ def test_cli_unknown_group_option_lists_valid_ones(tmp_path: Path):
     assert "Could not find 'agent/nope'" in proc.stderr and "ppo" in proc.stderr and "recom_l2" in proc.stderr
 
 
+def test_every_remedy_setting_is_documented_beside_it():
+    """A remedy's settings are documented where they are set (conf/remedy/<name>.yaml: a comment on each key's line)
+    and typed in its class's schema; the README's configuration reference covers the run's own keys (below), so a new
+    remedy needs no README row."""
+    for path in sorted((CONF / "remedy").glob("*.yaml")):
+        lines = [line for line in path.read_text().splitlines() if line and not line.startswith((" ", "#"))]
+        undocumented = [line.split(":")[0] for line in lines if not line.startswith("_target_") and "#" not in line]
+        assert not undocumented, (path.name, undocumented)
+        assert path.read_text().startswith("# "), path.name   # what the remedy is, and its paper
+
+
 def test_every_config_key_is_in_the_readme():
     """The README's configuration reference names every key a user can set (a key in a grouped row, e.g.
     `env.reward.w_p`, `w_v`, `w_a` or `agent.ppo.*`, counts)."""

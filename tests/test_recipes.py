@@ -53,6 +53,17 @@ def run_in(tree: Path, command: list[str], uri: str, *extra: str) -> subprocess.
                           timeout=600)
 
 
+def job_keys(conf: Path) -> dict[str, str]:
+    """The job key of every agent the project ships, composed from ``conf``."""
+    from hydra import compose, initialize_config_dir
+
+    from sweep.checkpoint import job_key
+
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        return {a.stem: job_key(compose(config_name="config", overrides=[f"agent={a.stem}"]), "sqlite:///x.db")
+                for a in sorted((ROOT / "conf" / "agent").glob("*.yaml"))}
+
+
 def changed_files(tree: Path) -> set[str]:
     """Files of the copy's conf/ and src/ that are new or differ from the project's."""
     out = set()
@@ -79,6 +90,7 @@ def test_the_readme_recipe_is_one_module_and_one_yaml(tmp_path, name, often, met
     for path, text in files.items():
         (tree / path).write_text(text)
     assert changed_files(tree) == set(files)   # the recipe's two files, nothing else
+    assert job_keys(tree / "conf") == job_keys(ROOT / "conf")   # every shipped agent keeps its job
 
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     train, report = commands
