@@ -335,6 +335,61 @@ def remedy_rows() -> list[tuple[str, str, str, str, str]]:
     return rows
 
 
+STEP_REMEDIES = {"weight_clip": ["agent=weight_clip"]}   # per-step remedies (Learner.add_step_transform)
+UPDATE_ROUNDS = 15   # interleaved timed updates of each variant, after a warm-up update each (JAX: its compilation)
+
+
+def update_seconds(learner: str) -> dict[str, list[float]]:
+    """Per variant (plain PPO, a second plain PPO as the noise floor, each per-step remedy), the times of
+    UPDATE_ROUNDS PPO updates on the paper layout (2048 steps, 10 epochs x 32 minibatches of 64), each variant on its
+    own collected rollout, the variants interleaved round by round in one process: what a per-step remedy adds."""
+    import torch
+
+    torch.set_num_threads(1)
+    from hydra import compose, initialize_config_dir
+
+    from sweep.agents import build_learner
+    from sweep.envs.hover import HoverVecEnv
+    from sweep.tracking import PROJECT_ROOT
+    from sweep.training.hooks import remedy_hooks
+
+    models = {}
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        for name, overrides in (("ppo", []), ("ppo again", []), *STEP_REMEDIES.items()):
+            cfg = compose(config_name="config", overrides=[f"agent.learner={learner}", *overrides])
+            model = build_learner(cfg.agent, HoverVecEnv(n_envs=1, seed=0), 0)
+            for remedy in remedy_hooks(cfg.agent):
+                remedy.setup(model, None)
+            model.begin(10 * ROLLOUT)
+            model.collect()
+            model.update()   # warm-up
+            models[name] = model
+    times = {name: [] for name in models}
+    for _ in range(UPDATE_ROUNDS):
+        for name, model in models.items():
+            t0 = time.perf_counter()
+            model.update()
+            times[name].append(time.perf_counter() - t0)
+    return times
+
+
+def step_remedy_rows() -> list[tuple[str, str, str, str, str]]:
+    """Each per-step remedy's cost per update against plain PPO's, on both learners: the median over rounds of the
+    time ratio to PPO's update in the same round (REPEATS fresh workers pooled), beside a second plain PPO's (what
+    two identical learners differ by here: the noise floor)."""
+    rows = []
+    for learner in ("jax", "sb3"):
+        passes = [_fresh_pool_map(update_seconds, [(learner,)])[0] for _ in range(REPEATS)]
+        ratio = {name: float(np.median([t / p for times in passes for t, p in zip(times[name], times["ppo"])]))
+                 for name in passes[0]}
+        ppo_ms = 1000 * float(np.median([t for times in passes for t in times["ppo"]]))
+        for name in STEP_REMEDIES:
+            rows.append((f"per-step remedy cost per update, {learner}, 1 x 2048 (320 SGD steps), agent={name}; "
+                         "a 2nd PPO", f"{ppo_ms:.1f} ms (ppo)", f"{ratio[name]:.3f}x; {ratio['ppo again']:.3f}x",
+                         f"{ratio[name]:.3f}x", f"<= 5%: {'met' if ratio[name] <= 1.05 else 'MISSED'}"))
+    return rows
+
+
 def study_run(every: int, seed: int, barrier: str, parties: int = 2) -> dict:
     """One ``experiment=remedies`` PPO job (JAX, paper layout) with the diagnostics every ``every`` rollouts."""
     t0, wall = _timed_run(["experiment=remedies", "agent=ppo", f"seed={seed}", f"train.total_timesteps={STUDY_STEPS}",
@@ -531,7 +586,10 @@ def main() -> int:
         return "met" if flag else "MISSED"
 
     if sys.argv[1:] == ["remedies"]:
-        rows += remedy_rows()
+        rows += remedy_rows() + step_remedy_rows()
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:] == ["step-remedies"]:
+        rows += step_remedy_rows()
         return _print_table(rows, t_start, load0)
     if sys.argv[1:] == ["study"]:
         rows += study_rows()
@@ -654,6 +712,7 @@ def main() -> int:
     rows.append(("peak RSS per run, MB", "", ", ".join(f"{k} {v:,.0f}" for k, v in rss.items()), "",
                  f"<= 1 GB: {ok(worst <= TARGETS['rss_mb'])}"))
     rows += remedy_rows()
+    rows += step_remedy_rows()
     rows += study_rows()
     rows += portable_rows()
     rows += report_rows()

@@ -1,11 +1,10 @@
-"""Checkpoint and resume of one run.
+"""Checkpoint and resume of one run: where a job's checkpoint lives, and the hook that writes it.
 
 A checkpoint is taken by the ``Checkpointer`` hook right after a PPO update, once the other hooks have acted on
-it, every ``train.checkpoint_every`` timesteps and when training ends. It holds the policy and optimizer, the
-learner's loop state (timesteps, last observations, episode-info buffer), every hook's state by name (RECOM's
-episodes, cost and LR; a new hook in the list starts afresh, a removed one's state is ignored), the loop's metrics
-waiting for the next log line, the env (vehicles, clocks, start RNG) and the global RNGs (torch, numpy, python),
-so the continued run is the run that would have happened.
+it, every ``train.checkpoint_every`` timesteps and when training ends. It holds ``Training.snapshot()``
+(``sweep.training.loop``, which also restores it): the policy and optimizer, the learner's loop state, every hook's
+state by name, the loop's pending metrics, the env and the global RNGs, so the continued run is the run that would
+have happened. This module imports the loop; the loop imports nothing of it.
 Written atomically: to ``checkpoint.pt.tmp``, then renamed over ``checkpoint.pt``.
 
 Where: ``<train.checkpoint_dir>/<job key>/``, the job key being a hash of the resolved config and the
@@ -18,22 +17,18 @@ import fcntl
 import hashlib
 import json
 import os
-import random
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import Any, Callable, Iterator
 
-import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
 from sweep.config import ConfigError, HookSettings, positive_int, remedy_blocks, runs, settings, unrun_remedy_settings
 from sweep.status import read_json, update_json
 from sweep.training.hooks import Hook
-
-if TYPE_CHECKING:
-    from sweep.training.loop import Training
+from sweep.training.loop import SNAPSHOT_FORMAT, Training
 
 
 def _running(blocks: dict) -> dict:
@@ -95,38 +90,11 @@ class JobRecord:
                 fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-FORMAT = 3   # 2: hooks by name and the loop's pending metrics (issue 31); 3: the condition's wind vector and vehicle
-            # (issue 33). Older checkpoints do not resume
-
-
-def snapshot(training: Training) -> dict[str, Any]:
-    """Everything the run needs to continue exactly: the learner's loop state and networks, every hook's state by
-    name, the loop's own (metrics waiting for the next log line, the last condition), the env and the global RNGs."""
-    return {"format": FORMAT, "num_timesteps": training.learner.num_timesteps,
-            "training": training.learner.training_state(), "hooks": training.hooks.state_dict(),
-            "loop": training.state_dict(), "env": training.env.get_state(),
-            "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}}
-
-
-def restore_loop(learner, state: dict) -> None:
-    """Before the learner's set-up: its loop state, so ``begin(..., reset=False)`` continues without an env reset."""
-    learner.load_training_state(state["training"])
-
-
-def restore(training: Training, state: dict) -> None:
-    """Once every hook is set up (L2 has replaced the optimizer): the networks and optimizer, the hooks by name,
-    the loop, the env and the global RNGs."""
-    training.learner.load_learner_state(state["training"]["learner"])
-    training.hooks.load_state_dict(state["hooks"])
-    training.load_state_dict(state["loop"])
-    training.env.set_state(state["env"])
-    torch.set_rng_state(state["rng"]["torch"])
-    np.random.set_state(state["rng"]["numpy"])
-    random.setstate(state["rng"]["python"])
+FORMAT = SNAPSHOT_FORMAT   # what a checkpoint file holds: ``Training.snapshot()``
 
 
 class Checkpointer(Hook):
-    """Saves ``snapshot(training)`` after the first update that passes each ``every`` timesteps, and at the end.
+    """Saves ``training.snapshot()`` after the first update that passes each ``every`` timesteps, and at the end.
     Runs last (``runs_last``), so the snapshot holds what every other hook did and returned after that update."""
 
     runs_last = True
@@ -159,7 +127,7 @@ class Checkpointer(Hook):
         path = self.training.checkpoint_path
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".pt.tmp")
-        torch.save(snapshot(self.training), tmp)
+        torch.save(self.training.snapshot(), tmp)
         os.replace(tmp, path)
         self.last_saved = self.training.learner.num_timesteps
 

@@ -42,7 +42,7 @@ class SB3PPO(StepwiseLearning, PPO):
 
     def _excluded_save_params(self) -> list[str]:
         """Not in model.zip: the per-step remedies (the hooks hold them; a saved policy loads without them)."""
-        return [*super()._excluded_save_params(), "step_transforms"]
+        return [*super()._excluded_save_params(), "step_transforms", "_named", "_named_of"]
 
     @property
     def minibatches_per_update(self) -> int:
@@ -105,10 +105,12 @@ class SB3PPO(StepwiseLearning, PPO):
 
     @torch.no_grad()
     def _after_step(self) -> None:
-        params = dict(self.policy.named_parameters())
+        if getattr(self, "_named_of", None) is not self.policy:   # parameters are written in place: look them up once
+            self._named, self._named_of = dict(self.policy.named_parameters()), self.policy
         for transform in self.step_transforms:
-            for name, value in transform(params, torch).items():
-                params[name].copy_(value)
+            new = transform(self._named, torch)
+            if new:
+                torch._foreach_copy_([self._named[k] for k in new], list(new.values()))
 
     # ---- optimizer -----------------------------------------------------------------------------------
     def optimizer_moments(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -6,10 +6,12 @@ learning", RLC 2024): after every optimizer step, each weight and bias of the ch
 s_l is the bound of the layer's initialisation distribution as the authors take it (torch's default ``nn.Linear``
 init, Kaiming-uniform, U(-1/sqrt(fan_in), 1/sqrt(fan_in)), for the weights and the biases of a layer alike). It is
 not this project's init: SB3 draws orthogonal weights (gain sqrt(2) in the hidden layers, 0.01 and 1 in the heads),
-whose hidden weights reach past 1/sqrt(fan_in); kappa = 2 (our default, a config value) clips about a sixth of the
-64 x 64 layer's initial weights at the first step (docs/remedies.md#weight-clipping). LayerNorm's scale and shift
-and ``log_std`` are not clipped (the authors' networks have no LayerNorm; a scale initialised at 1 would be cut to
-kappa/sqrt(64) at once).
+whose hidden weights reach past 1/sqrt(fan_in); kappa = 2 clips about a sixth of the 64 x 64 layer's initial weights
+at the first step. The output layers are clipped only with ``heads`` (the authors' ``clip_last_layer``): a clipped
+value head bounds |V| by about 8 kappa (64 tanh units x kappa/8 + the bias), against discounted returns of about -150
+to -450 here, and PPO then learns no value at all (explained variance 0; docs/calibration.md#weight-clip measures kappa and heads).
+LayerNorm's scale and shift and ``log_std`` are not clipped (the authors' networks have no LayerNorm; a scale
+initialised at 1 would be cut to kappa/sqrt(64) at once).
 
 A per-step remedy (``Learner.add_step_transform``): the clip runs inside every update, after each Adam step, on
 both learners, so the final policy is within the bounds too. Every ``log_every_updates`` updates it logs

@@ -11,14 +11,18 @@
 This is SB3's ``learn()`` order (an update's ``train/*`` appear in the next rollout's log line, and the last
 update's never), so the logged histories are those SB3's loop wrote (tests/test_reference_history.py).
 ``Training`` holds what the loop owns beside the learner: the env, the hooks, the logger it writes to, the
-metrics waiting for the next line and the condition of the last rollout; ``sweep.checkpoint`` saves and restores it.
+metrics waiting for the next line and the condition of the last rollout; its ``snapshot`` is what a checkpoint holds
+(``sweep.checkpoint`` writes it to disk), and ``train(training, resume=snapshot)`` continues it.
 """
 from __future__ import annotations
 
+import random
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+import torch
 from stable_baselines3.common.logger import Logger
 
 from sweep.training.hooks import Hooks, Metrics
@@ -48,21 +52,43 @@ class Training:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.pending, self.condition = dict(state["pending"]), state["condition"]
 
+    def snapshot(self) -> dict[str, Any]:
+        """Everything the run needs to continue exactly: the learner's loop state and networks, every hook's state
+        by name, the loop's own (metrics waiting for the next log line, the last condition), the env and the global
+        RNGs. A checkpoint holds it (format ``SNAPSHOT_FORMAT``)."""
+        return {"format": SNAPSHOT_FORMAT, "num_timesteps": self.learner.num_timesteps,
+                "training": self.learner.training_state(), "hooks": self.hooks.state_dict(),
+                "loop": self.state_dict(), "env": self.env.get_state(),
+                "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Once every hook is set up (L2 has replaced the optimizer): the networks and optimizer, the hooks by name,
+        the loop, the env and the global RNGs of a ``snapshot`` (its loop state came before the set-up: ``train``)."""
+        self.learner.load_learner_state(state["training"]["learner"])
+        self.hooks.load_state_dict(state["hooks"])
+        self.load_state_dict(state["loop"])
+        self.env.set_state(state["env"])
+        torch.set_rng_state(state["rng"]["torch"])
+        np.random.set_state(state["rng"]["numpy"])
+        random.setstate(state["rng"]["python"])
+
+
+SNAPSHOT_FORMAT = 3   # 2: hooks by name and the loop's pending metrics (issue 31); 3: the condition's wind vector and
+                      # vehicle (issue 33). Older snapshots do not resume
+
 
 def train(training: Training, resume: dict | None = None) -> UpdateRecord | None:
     """Train ``training.learner`` to ``training.total_timesteps``, continuing the checkpoint ``resume`` if given
     (one taken at the end is only restored); returns the last update's record (None if no update ran)."""
-    from sweep import checkpoint   # the checkpoint module saves Training; imported here, it imports no loop
-
     t, learner = training, training.learner
     learner.set_logger(t.logger)
-    if resume is not None:
-        checkpoint.restore_loop(learner, resume)
+    if resume is not None:   # the loop state first, so begin(..., reset=False) continues without an env reset
+        learner.load_training_state(resume["training"])
     total = learner.begin(t.total_timesteps - learner.num_timesteps, reset=resume is None)
     for hook in t.hooks:
         hook.setup(learner, t)
     if resume is not None:
-        checkpoint.restore(t, resume)
+        t.restore(resume)
     if learner.num_timesteps >= total:   # a checkpoint taken at the end: restored (networks, kept policies), no more
         return None
 
