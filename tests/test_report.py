@@ -1937,3 +1937,24 @@ def test_log_axis_labels_a_y_axis_spanning_less_than_a_decade():
     plt.close(fig)
     assert ax.get_yscale() == "log" and len(labels) >= 2, labels
     assert all(re.fullmatch(r"[0-9.e-]+", text) for text in labels), labels
+
+
+def test_narrow_small_multiples_keep_their_titles_and_time_labels_apart():
+    """Six --by panels across a page (the weight-clipping grid: kappa x heads): each panel's title wraps one value per
+    line instead of running into the next panel's, and the time axis is labelled sparsely enough not to overlap."""
+    from matplotlib import pyplot as plt
+    from matplotlib.transforms import Bbox
+
+    with plt.rc_context(style.RC):   # the report's fonts
+        fig, axes = plt.subplots(1, 6, figsize=(style.PAGE_WIDTH, 2.3), sharey=True)
+        for ax in axes:
+            ax.plot([0, 3e6], [0, 1])
+            figures._panel_title(ax, "kappa=1.0, heads=False", [(0, 2e6, 3.0), (2e6, 3e6, 2.0)])
+            figures.timestep_axis(ax, 3e6)
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        titles = [ax.title.get_window_extent(renderer) for ax in axes]
+        assert not any(Bbox.intersection(a, b) for a, b in zip(titles, titles[1:])), [ax.title.get_text() for ax in axes]
+        labels, boxes = _drawn_tick_labels(axes[0].xaxis)
+        plt.close(fig)
+    assert len(boxes) >= 2 and not any(Bbox.intersection(a, b) for i, a in enumerate(boxes) for b in boxes[i + 1:]), labels

@@ -39,10 +39,16 @@ def save(fig, out: Path, stem: str) -> list[Path]:
     return paths
 
 
+def panel_inches(ax) -> float:
+    """A panel's width in inches, as laid out so far."""
+    return ax.get_position().width * ax.figure.get_figwidth()
+
+
 def timestep_axis(ax, x_max: float) -> None:
+    """Timesteps in k or M, about one label per half inch of the panel (six at most), so narrow panels stay legible."""
     scale, unit = (1e6, "M") if x_max >= 1e6 else (1e3, "k") if x_max >= 1e3 else (1.0, "")
     ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / scale:g}"))
-    ax.xaxis.set_major_locator(MaxNLocator(6))
+    ax.xaxis.set_major_locator(MaxNLocator(int(min(6, max(2, panel_inches(ax) / 0.5)))))
     ax.set_xlabel(f"Timesteps ({unit})" if unit else "Timesteps")
 
 
@@ -151,8 +157,11 @@ def curve_figure(runs: pd.DataFrame, histories: pd.DataFrame, wind: str, stem: s
 
 
 def _panel_title(ax, title: str, spans) -> None:
-    """A small-multiple panel's title (its --by values), above the wind speeds if the panel shows them."""
+    """A small-multiple panel's title (its --by values), above the wind speeds if the panel shows them; one value per
+    line where the panel is too narrow for the title on one line."""
     if title:
+        if len(title) * 0.055 > panel_inches(ax):   # ~0.055 in per character at the figures' 7 pt
+            title = title.replace(", ", ",\n")
         ax.set_title(title, pad=13 if len(spans) >= 2 else 4)
 
 
