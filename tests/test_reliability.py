@@ -91,7 +91,7 @@ def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch, learner)
     assert histories[0] == histories[1] and len(histories[0]["train/loss"]) == 2
 
 
-@pytest.mark.parametrize("kind,reason", [("raise", "RuntimeError: injected failure"), ("nan", "NonFiniteError")])
+@pytest.mark.parametrize("kind,reason", [("raise", "RuntimeError: injected failure"), ("'nan'", "NonFiniteError")])
 def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
     uri = f"sqlite:///{tmp_path / 'x.db'}"
     env_path = os.environ.get("PYTHONPATH", "")
