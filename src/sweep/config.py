@@ -500,7 +500,7 @@ def validate(cfg: DictConfig) -> None:
     _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
     whole = OmegaConf.to_container(cfg, resolve=True)
     for where, block, cls in classes:   # what a hook asks of the rest of the run (e.g. RECOM: a constant LR schedule)
-        if block.get("enabled", True) and hasattr(cls, "check_config"):
+        if runs(block):
             cls.check_config(where, block, whole)
 
 

@@ -20,7 +20,7 @@ import torch
 from hydra.utils import get_class
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from sweep.config import MISSING, ConfigError, HookSettings, choice, non_empty, non_negative
+from sweep.config import MISSING, ConfigError, HookSettings, choice, non_empty, non_negative, remedy_blocks, runs
 from sweep.training.hooks import Hook
 
 GROUPS = {
@@ -103,8 +103,8 @@ class L2Regularization(Hook):
     @classmethod
     def check_config(cls, where: str, settings: dict, cfg: dict) -> None:
         """One weight decay per run: L2 and L2-Init both set the optimizer's decay."""
-        others = [f"agent.{k}" for k, v in cfg["agent"].items() if isinstance(v, dict) and v.get("enabled", True)
-                  and f"agent.{k}" != where and issubclass(get_class(v.get("_target_", "builtins.object")), L2Regularization)]
+        others = [f"agent.{k}" for k, v in remedy_blocks(cfg["agent"]).items() if runs(v) and f"agent.{k}" != where
+                  and issubclass(get_class(v["_target_"]), L2Regularization)]
         if others:
             raise ConfigError(f"{where}.enabled=True and {others[0]}.enabled=True: must be one of them (both set the "
                               "optimizer's weight decay; L2 pulls toward 0, L2-Init toward theta_0)")
