@@ -90,9 +90,6 @@ class JobRecord:
                 fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-FORMAT = SNAPSHOT_FORMAT   # what a checkpoint file holds: ``Training.snapshot()``
-
-
 class Checkpointer(Hook):
     """Saves ``training.snapshot()`` after the first update that passes each ``every`` timesteps, and at the end.
     Runs last (``runs_last``), so the snapshot holds what every other hook did and returned after that update."""
@@ -137,7 +134,7 @@ def load_checkpoint(path: Path) -> dict | None:
     if not Path(path).exists():
         return None
     state = torch.load(path, weights_only=False)
-    if state.get("format") != FORMAT:
+    if state.get("format") != SNAPSHOT_FORMAT:
         raise ConfigError(f"resume: {path} was written by an older version of the training loop (checkpoint format "
-                          f"{state.get('format', 1)}, this code reads {FORMAT}); run with resume=never, or delete it")
+                          f"{state.get('format', 1)}, this code reads {SNAPSHOT_FORMAT}); run with resume=never, or delete it")
     return state
