@@ -32,10 +32,25 @@ RECOM_RUN = ["agent=recom_l2", "seed=4", "agent.ppo.n_steps=512", "agent.ppo.n_e
              "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
 
 
-@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 20480)])  # jax: faster, longer run
-def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, learner, total):
+# Off-policy: RECOM + L2 on SAC and TD3 with rounds of 512 steps; the replay buffer, the round so far, the exploration
+# noise and the uniform warm-up draws must all come back.
+OFF_POLICY_RUN = ["seed=4", "+remedy@agent.recom=recom", "+remedy@agent.l2=l2", "agent.recom.interval=1024",
+                  "agent.recom.window=2", "agent.recom.gain=1e-6", "agent.recom.lr_max=0.01", "train.checkpoint_every=1024",
+                  "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0", "agent.policy.net_arch=[32,32]"]
+
+
+def off_policy(algorithm: str) -> list[str]:
+    return [f"agent={algorithm}", *OFF_POLICY_RUN, f"agent.{algorithm}.round_steps=512",
+            f"agent.{algorithm}.learning_starts=600", f"agent.{algorithm}.batch_size=64"]
+
+
+@pytest.mark.parametrize("config,learner,total", [(RECOM_RUN, "sb3", 6144), (RECOM_RUN, "jax", 20480),  # jax: faster
+                                                  (off_policy("sac"), "sb3", 4096), (off_policy("td3"), "sb3", 4096)],
+                         ids=["ppo-sb3", "ppo-jax", "sac-sb3", "td3-sb3"])
+def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, config, learner, total):
     uri = f"sqlite:///{tmp_path / 'killed.db'}"
-    config = [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"]
+    loss = "train/loss" if config is RECOM_RUN else "train/critic_loss"
+    config = [*config, f"agent.learner={learner}", f"train.total_timesteps={total}"]
     args = [*config, f"hydra.run.dir={tmp_path / 'out'}"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
     proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=tmp_path, env=env,
@@ -68,7 +83,8 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     ref = run_cli([*config, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, tmp_path)
     assert ref.returncode == 0, ref.stderr[-2000:]
     ref_client, (ref_run,) = runs_of(ref_uri)
-    for key in ("train/learning_rate", "rollout/ep_rew_mean", "train/loss", "recom/cost"):
+    assert len(history(client, run_id, loss)) > 2
+    for key in ("train/learning_rate", "rollout/ep_rew_mean", loss, "recom/cost", "plasticity/dormant_ratio"):
         assert history(client, run_id, key) == history(ref_client, ref_run.info.run_id, key), key
     assert len({v for _, v in history(client, run_id, "train/learning_rate")}) > 1
 

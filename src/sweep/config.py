@@ -245,6 +245,49 @@ class PPO:
     lr_decay_timesteps: Optional[int] = key(lambda v: v is None or v > 0, "an integer > 0 or null (the whole run)")
 
 
+def _auto_or_positive(v: Any) -> bool:
+    return v == "auto" or (isinstance(v, (int, float)) and not isinstance(v, bool) and _finite(v) and v > 0)
+
+
+@dataclass
+class OffPolicy:
+    """SB3's SAC/TD3 arguments common to both (agent.sac, agent.td3), the round and the LR-decay controls."""
+    learning_rate: float = positive()
+    buffer_size: int = positive_int(" (transitions)")
+    learning_starts: int = at_least(0, unit=" (env steps of uniform random actions before the first update)")
+    batch_size: int = positive_int()
+    tau: float = key(lambda v: _finite(v) and 0 < v <= 1, "a number in (0, 1] (Polyak coefficient)")
+    gamma: float = unit_interval()
+    train_freq: int = positive_int(" (env steps per env between two updates)")
+    gradient_steps: int = key(lambda v: v == -1 or v >= 0, "an integer >= 0, or -1 (as many as the env steps collected)")
+    round_steps: int = positive_int(" (env steps between two log lines and hook calls)")
+    action_noise_std: Optional[float] = key(lambda v: v is None or (_finite(v) and v > 0),
+                                            "a number > 0 (Gaussian exploration noise) or null (none)")
+    lr_schedule: LRSchedule = MISSING
+    lr_floor: float = non_negative()
+    lr_decay_timesteps: Optional[int] = key(lambda v: v is None or v > 0, "an integer > 0 or null (the whole run)")
+
+
+@dataclass
+class SAC(OffPolicy):
+    """SB3 SAC's own arguments (agent.sac)."""
+    ent_coef: Any = key(_auto_or_positive, "auto (learned, init 1) or a number > 0 (fixed)")
+    target_entropy: Any = key(lambda v: v == "auto" or (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                         and _finite(v)), "auto (-dim(A)) or a number")
+    target_update_interval: int = positive_int(" (gradient steps)")
+
+
+@dataclass
+class TD3(OffPolicy):
+    """SB3 TD3's own arguments (agent.td3)."""
+    policy_delay: int = positive_int(" (critic steps per actor step)")
+    target_policy_noise: float = non_negative()
+    target_noise_clip: float = non_negative()
+
+
+ALGORITHMS = ("ppo", "sac", "td3")   # an agent's algorithm is the one of these blocks it has
+
+
 @dataclass
 class Policy:
     net_arch: List[int] = key(lambda v: len(v) > 0 and all(h > 0 for h in v), "a non-empty list of layer widths > 0")
@@ -267,7 +310,10 @@ class Agent:
     label: str = MISSING
     learner: str = MISSING   # a key of learners: checked in _cross_rules
     learners: Dict[str, Factory] = field(default_factory=dict)
-    ppo: PPO = field(default_factory=PPO)
+    algorithm: str = key(lambda v: v in ALGORITHMS, "|".join(ALGORITHMS), default="ppo")
+    ppo: Optional[PPO] = None   # the block of agent.algorithm: its hyperparameters (another's: unused_algorithm_blocks)
+    sac: Optional[SAC] = None
+    td3: Optional[TD3] = None
     policy: Policy = field(default_factory=Policy)
     # and the agent's remedies: any other key holding a block with a _target_ (conf/remedy/), checked against the
     # ``Settings`` of the class it names (``validate``)
@@ -488,6 +534,9 @@ def validate(cfg: DictConfig) -> None:
     for name, block in unrun_remedy_settings(plain.get("agent", {})).items():
         _check_unrun(name, block)
         plain["agent"].pop(name)
+    agent_hints = _hints(Agent)
+    for name in unused_algorithm_blocks(plain.get("agent", {})):
+        _check_partial(plain["agent"].pop(name), typing.get_args(agent_hints[name])[0], f"agent.{name}")
     hints = _hints(SweepConfig)
     for name in plain:
         if name not in hints:
@@ -499,8 +548,13 @@ def validate(cfg: DictConfig) -> None:
     classes = [(where, block, check_component(where, block)) for where, block in blocks]
     _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
     whole = OmegaConf.to_container(cfg, resolve=True)
+    algorithm = algorithm_of(whole["agent"])
     for where, block, cls in classes:   # what a hook asks of the rest of the run (e.g. RECOM: a constant LR schedule)
         if runs(block):
+            works = getattr(cls, "algorithms", ALGORITHMS)
+            if algorithm not in works:
+                raise ConfigError(f"{where}: {cls.__name__} works with agent.algorithm={'|'.join(works)}, not with "
+                                  f"agent {whole['agent']['name']}'s {algorithm}")
             cls.check_config(where, block, whole)
 
 
@@ -529,6 +583,49 @@ def _vehicle_rules(c: DictConfig) -> None:
                               f"{list(segment.rotor_efficiency)}: must be another name (nominal means RotorPy's vehicle)")
 
 
+def algorithm_of(agent: Any) -> str:
+    """The agent's algorithm (``agent.algorithm``; PPO's agents leave it at its default, ppo)."""
+    return agent.get("algorithm", "ppo") or "ppo"
+
+
+def unused_algorithm_blocks(agent: dict) -> list[str]:
+    """Blocks of another algorithm than the agent's (``agent.ppo`` settings of a PPO experiment, e.g. smoke's
+    ``n_steps``, composed with ``agent=sac``): checked against that algorithm's schema key by key (``validate``),
+    never used, dropped from the config before the run is logged or keyed (``drop_unused_algorithm_blocks``)."""
+    own = algorithm_of(agent)
+    return [name for name in ALGORITHMS if name != own and agent.get(name) is not None]
+
+
+def drop_unused_algorithm_blocks(cfg: DictConfig) -> list[str]:
+    """Remove (in place) the ``unused_algorithm_blocks`` of the agent; returns their names."""
+    names = unused_algorithm_blocks(OmegaConf.to_container(cfg.agent, resolve=True))
+    for name in names:
+        with open_dict(cfg.agent):
+            del cfg.agent[name]
+    return names
+
+
+def _check_partial(value: Any, typ: type, where: str) -> None:
+    """The keys given of a schema block, each checked (missing keys allowed)."""
+    if not isinstance(value, dict):
+        raise _fail(where, value, _what(typ))
+    spec, hints = {f.name: f for f in fields(typ)}, _hints(typ)
+    for name, item in value.items():
+        if name not in spec:
+            raise ConfigError(f"{where}.{name}: not a config key (allowed under {where}: {', '.join(spec)})")
+        _check(item, hints[name], f"{where}.{name}", spec[name].metadata)
+
+
+def _off_policy_rules(c: DictConfig, algorithm: str) -> None:
+    h = c.agent[algorithm]
+    if h.batch_size > h.buffer_size:
+        raise ConfigError(f"agent.{algorithm}.batch_size={h.batch_size}: must be <= agent.{algorithm}.buffer_size="
+                          f"{h.buffer_size}")
+    if h.round_steps < h.train_freq * c.env.n_envs:
+        raise ConfigError(f"agent.{algorithm}.round_steps={h.round_steps}: must be >= one turn, agent.{algorithm}."
+                          f"train_freq x env.n_envs = {h.train_freq * c.env.n_envs} env steps")
+
+
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent
@@ -546,9 +643,17 @@ def _cross_rules(c: DictConfig) -> None:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:
         raise ConfigError(f"agent.learner={a.learner!r}: must be one of {'|'.join(a.learners)} (conf/learner/)")
-    if a.ppo.lr_decay_timesteps is not None and a.ppo.lr_schedule.value == "constant":
-        raise ConfigError(f"agent.ppo.lr_decay_timesteps={a.ppo.lr_decay_timesteps!r}: must be null with "
-                          "agent.ppo.lr_schedule=constant (it is when a linear|cosine decay reaches lr_floor)")
+    algorithm = a.algorithm
+    if a[algorithm] is None:
+        raise ConfigError(f"agent.{algorithm}: missing; must be the hyperparameters of agent.algorithm={algorithm} "
+                          "(conf/agent/ppo.yaml, sac.yaml, td3.yaml hold them)")
+    h = a[algorithm]
+    if h.lr_decay_timesteps is not None and h.lr_schedule.value == "constant":
+        raise ConfigError(f"agent.{algorithm}.lr_decay_timesteps={h.lr_decay_timesteps!r}: must be null with "
+                          f"agent.{algorithm}.lr_schedule=constant (it is when a linear|cosine decay reaches lr_floor)")
+    if algorithm != "ppo":
+        _off_policy_rules(c, algorithm)
+        return
     rollout, batch = a.ppo.n_steps * c.env.n_envs, a.ppo.batch_size
     if batch > rollout:
         raise ConfigError(f"agent.ppo.batch_size={batch!r}: must be <= the rollout size "

@@ -25,7 +25,8 @@ from threadpoolctl import threadpool_limits
 from sweep.agents import build_learner
 from sweep import metrics, portable
 from sweep.checkpoint import JobRecord, job_key, load_checkpoint
-from sweep.config import ConfigError, one_line, settings, switch_off_unrun_remedy_settings, validate
+from sweep.config import (ConfigError, algorithm_of, drop_unused_algorithm_blocks, one_line, settings,
+                          switch_off_unrun_remedy_settings, validate)
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.evaluate import evaluate, flight_conditions
 from sweep.status import read_status, write_status
@@ -133,6 +134,8 @@ def validated_hooks(cfg: DictConfig) -> Hooks:
     validate(cfg)
     for name in switch_off_unrun_remedy_settings(cfg):
         log.info("agent %s does not compose remedy %s: its agent.%s.* settings are not used", cfg.agent.name, name, name)
+    for name in drop_unused_algorithm_blocks(cfg):
+        log.info("agent %s runs %s: the agent.%s.* settings are not used", cfg.agent.name, algorithm_of(cfg.agent), name)
     try:
         portable.check(cfg.train.portable)
     except ValueError as err:

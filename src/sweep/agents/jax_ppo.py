@@ -69,7 +69,7 @@ from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_critic, adam_k
 from sweep.agents.onpolicy import StepwiseLearning  # noqa: E402
 from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
-from sweep.training.records import UpdateRecord  # noqa: E402
+from sweep.training.records import Samples, UpdateRecord  # noqa: E402
 
 ACTIVATIONS = {"tanh": jnp.tanh, "relu": jax.nn.relu}
 
@@ -412,9 +412,10 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         return {"policy": [Hidden(np.asarray(a), np.asarray(b)) for a, b in pi_hidden],
                 "value": [Hidden(np.asarray(a), np.asarray(b)) for a, b in vf_hidden]}
 
-    def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
+    def loss_grad_norm(self, samples: Samples) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1), before clipping."""
-        batch = {"observations": obs, "actions": actions, "advantages": advantages, "returns": returns}
+        batch = {"observations": samples.observations, "actions": samples.actions, "advantages": samples.advantages,
+                 "returns": samples.returns}
         return float(self._grad_norm(self.params, {k: np.asarray(v, np.float32) for k, v in batch.items()}))
 
     def learner_state(self) -> dict[str, Any]:

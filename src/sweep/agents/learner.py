@@ -46,7 +46,9 @@ class Hidden(NamedTuple):
 
 class StepTransform(Protocol):
     """A per-step remedy: what it makes of the parameters right after each optimizer step (SGD step), on both
-    learners. ``params`` maps names to arrays of the learner's own kind and ``xp`` is their module (``torch`` on SB3,
+    learners. ``params`` maps names to arrays of the learner's own kind: the parameters that optimizer steps (PPO:
+    all; SAC/TD3: the actor's, or the critics', each after its own optimizer's step, so a step never writes weights a
+    later loss of the same gradient step still holds in its graph) and ``xp`` is their module (``torch`` on SB3,
     where it runs in a step hook of the optimizer; ``jax.numpy`` on JAX, where it is traced into the compiled
     update): a pure function of its arguments and of constants fixed before training, using only functions both
     modules share (``xp.clip``, ``xp.where``, arithmetic). Returns the new values of the parameters it changes."""
@@ -58,8 +60,9 @@ class StepTransform(Protocol):
 class Learner(Protocol):
     num_timesteps: int
     rng: np.random.Generator               # the remedies' generator (checkpointed)
-    networks: tuple[Network, Network]      # (policy, value)
-    minibatches_per_update: int            # SGD steps of one full update (n_epochs x rollout / batch_size)
+    networks: tuple[Network, ...]          # the trained networks: PPO's (policy, value); (actor, critic_0, critic_1)
+    minibatches_per_update: int            # gradient steps of one update (PPO: n_epochs x rollout / batch_size; a round's)
+    groups: dict[str, tuple[str, ...]]     # a remedy's ``params`` words (policy, value, log_std) -> parameter-name prefixes
 
     # -- the loop's steps --
     def begin(self, timesteps: int, reset: bool = True) -> int:
@@ -99,6 +102,9 @@ class Learner(Protocol):
     def initial_parameters(self) -> dict[str, np.ndarray]:
         """theta_0: the parameters as the learner was built (copies)."""
 
+    def reset_targets(self) -> None:
+        """Every target network becomes a copy of its network (off-policy; PPO has none): what a reset does."""
+
     def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
         """Per network (``policy``, ``value``), each hidden layer's (pre, post) activations on ``obs``."""
 
@@ -118,8 +124,9 @@ class Learner(Protocol):
     def add_step_transform(self, transform: StepTransform) -> None:
         """Apply ``transform`` after every optimizer step from now on (a per-step remedy: weight clipping)."""
 
-    def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
-        """Norm of the PPO loss gradient at the current parameters, before clipping."""
+    def loss_grad_norm(self, samples: Samples) -> float:
+        """Norm of the learner's loss gradient on ``samples`` (``recent_samples``) at the current parameters, before
+        clipping: PPO's total loss; SAC's and TD3's critic TD loss."""
 
     def learner_state(self) -> dict[str, Any]:
         """Parameters, optimizer state and the learner's own generators, for a checkpoint."""

@@ -38,23 +38,57 @@ def adam_kwargs(eps: float) -> dict:
     return {"eps": float(eps), "fused": True}
 
 
+INITS = ("orthogonal", "uniform")
+# The words a remedy's ``params`` setting takes (L2, shrink-and-perturb) -> the parameter-name prefixes of PPO's
+# groups (``Learner.groups``; the off-policy learners have their own: ``sweep.agents.sb3_offpolicy.GROUPS``)
+GROUPS = {
+    "policy": ("mlp_extractor.policy_net.", "action_net."),
+    "value": ("mlp_extractor.value_net.", "value_net."),
+    "log_std": ("log_std",),
+}
+
+
 @dataclass(frozen=True)
 class Network:
-    """One MLP of the actor-critic: its hidden Linear layers (with their LayerNorms) and its head."""
+    """One trained MLP of a learner: its hidden Linear layers (with their LayerNorms) and its head(s).
 
-    name: str                        # policy | value
+    ``role`` is what remedy settings name (``networks: [policy, value]``): PPO's ``policy`` and ``value`` networks;
+    an off-policy learner's actor (role policy) and each of its critics (role value). ``init`` is the distribution
+    its Linear layers are drawn from: ``orthogonal`` (SB3's ``ortho_init``: gain sqrt 2 in the hidden layers,
+    ``head_gain`` in the head, zero biases) or ``uniform`` (torch's ``nn.Linear`` default, which SB3's SAC and TD3
+    keep: weights and biases U(-1/sqrt(fan_in), 1/sqrt(fan_in))). ``extra_heads`` read the last hidden layer beside
+    ``head`` (SAC's ``log_std``)."""
+
+    name: str                        # policy | value | actor | critic_0 | critic_1
     hidden: tuple[str, ...]          # SB3 names of the hidden Linear layers
     norms: tuple[str | None, ...]    # the LayerNorm after each hidden layer (None: no LayerNorm)
-    head: str                        # action_net | value_net
+    head: str                        # action_net | value_net | actor.mu | critic.qf0.4 ...
     head_gain: float
+    role: str = ""                   # policy | value ("": the name)
+    init: str = "orthogonal"         # orthogonal | uniform
+    extra_heads: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.role:
+            object.__setattr__(self, "role", self.name)
+        if self.init not in INITS:
+            raise ValueError(f"init {self.init!r}: one of {INITS}")
+
+    def readers(self, k: int) -> tuple[str, ...]:
+        """The layers that read hidden layer k's units."""
+        return (self.hidden[k + 1],) if k + 1 < len(self.hidden) else (self.head, *self.extra_heads)
 
     def outgoing(self, k: int) -> str:
-        """The layer that reads hidden layer k's units."""
-        return self.hidden[k + 1] if k + 1 < len(self.hidden) else self.head
+        """The (first) layer that reads hidden layer k's units."""
+        return self.readers(k)[0]
 
     @property
     def linears(self) -> tuple[str, ...]:
-        return (*self.hidden, self.head)
+        return (*self.hidden, self.head, *self.extra_heads)
+
+    def gain(self, layer: str) -> float:
+        """The orthogonal init's gain of ``layer`` (hidden: sqrt 2; a head: ``head_gain``)."""
+        return HIDDEN_GAIN if layer in self.hidden else self.head_gain
 
 
 def actor_critic(n_hidden: int, layer_norm: bool = False) -> tuple[Network, Network]:
@@ -83,16 +117,41 @@ def orthogonal(shape: tuple[int, int], gain: float, rng: np.random.Generator) ->
     return (gain * q).astype(np.float32)
 
 
+def uniform_fan_in(shape: tuple[int, ...], fan_in: int, rng: np.random.Generator) -> np.ndarray:
+    """A draw of torch ``nn.Linear``'s default init (``kaiming_uniform_(a=sqrt 5)`` for the weight, the same bound for
+    the bias): U(-1/sqrt(fan_in), 1/sqrt(fan_in)), float32."""
+    bound = 1.0 / math.sqrt(fan_in)
+    return rng.uniform(-bound, bound, shape).astype(np.float32)
+
+
+def fresh_rows(net: Network, layer: str, shape: tuple[int, int], k: int, rng: np.random.Generator) -> np.ndarray:
+    """k rows of a fresh draw of ``layer``'s init (a unit's incoming weights). Orthogonal: for a wide or square layer,
+    k rows of a Haar-orthogonal matrix are a uniform k-frame, which is what an orthogonal (k, in) draw is; a tall layer
+    is drawn whole and k of its rows kept. Uniform: k independent rows."""
+    rows, cols = shape
+    if net.init == "uniform":
+        return uniform_fan_in((k, cols), cols, rng)
+    if rows <= cols:
+        return orthogonal((k, cols), net.gain(layer), rng)
+    return orthogonal(shape, net.gain(layer), rng)[:k]
+
+
 def fresh_parameters(shapes: dict[str, tuple[int, ...]], networks: tuple[Network, ...],
                      rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Every parameter drawn anew from its initial distribution (see the module docstring)."""
+    """Every parameter drawn anew from its initial distribution (see the module docstring and ``Network.init``);
+    parameters of no network (log_std, SAC's log entropy coefficient) start at 0."""
     out = {name: np.zeros(shape, np.float32) for name, shape in shapes.items()}  # biases, LN shifts, log_std
     for net in networks:
         for k, layer in enumerate(net.hidden):
-            out[f"{layer}.weight"] = orthogonal(shapes[f"{layer}.weight"], HIDDEN_GAIN, rng)
             if net.norms[k]:
                 out[f"{net.norms[k]}.weight"] = np.ones(shapes[f"{net.norms[k]}.weight"], np.float32)
-        out[f"{net.head}.weight"] = orthogonal(shapes[f"{net.head}.weight"], net.head_gain, rng)
+        for layer in net.linears:
+            shape = shapes[f"{layer}.weight"]
+            if net.init == "uniform":
+                out[f"{layer}.weight"] = uniform_fan_in(shape, shape[1], rng)
+                out[f"{layer}.bias"] = uniform_fan_in(shapes[f"{layer}.bias"], shape[1], rng)
+            else:
+                out[f"{layer}.weight"] = orthogonal(shape, net.gain(layer), rng)
     return out
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sweep.agents.networks import GROUPS
 from sweep.training.records import Episode, RolloutRecord, Samples, UpdateRecord
 
 
@@ -72,6 +73,7 @@ class StepwiseLearning:
 
     _rollouts = 0
     _updates = 0
+    groups = GROUPS   # remedies' parameter groups (``Learner.groups``)
 
     def begin(self, timesteps: int, reset: bool = True) -> int:
         """``learn()``'s set-up for ``timesteps`` more steps (``reset``: from 0, env reset); returns the total."""
@@ -100,6 +102,9 @@ class StepwiseLearning:
         """One PPO update on the rollout just collected."""
         self._updates += 1
         return self._train_record()
+
+    def reset_targets(self) -> None:
+        """PPO has no target networks."""
 
     def recent_samples(self, n: int) -> Samples:
         """The ``n`` most recent steps of the rollout buffer (``recent_rollout``)."""

@@ -20,7 +20,7 @@ from sweep.agents.learner import Hidden
 from sweep.agents.networks import actor_critic, adam_kwargs, policy_class, remedy_rng
 from sweep.agents.onpolicy import StepwiseLearning
 from sweep.plasticity.l2 import l2_optimizer
-from sweep.training.records import UpdateRecord
+from sweep.training.records import Samples, UpdateRecord
 
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 
@@ -146,10 +146,11 @@ class SB3PPO(StepwiseLearning, PPO):
             return {"policy": _activations(policy.mlp_extractor.policy_net, features),
                     "value": _activations(policy.mlp_extractor.value_net, features)}
 
-    def loss_grad_norm(self, obs, actions, advantages, returns) -> float:
+    def loss_grad_norm(self, samples: Samples) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1, so no clipping), as SB3 computes it."""
         t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
-        obs, actions, advantages, returns = t(obs), t(actions), t(advantages).flatten(), t(returns).flatten()
+        obs, actions = t(samples.observations), t(samples.actions)
+        advantages, returns = t(samples.advantages).flatten(), t(samples.returns).flatten()
         values, log_prob, entropy = self.policy.evaluate_actions(obs, actions)
         if self.normalize_advantage and len(advantages) > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)

@@ -64,12 +64,12 @@ class ContinualBackprop(Remedy):
         params = surgery.params
         replaced = eligible_total = 0
         for net in learner.networks:
-            if net.name not in self.networks:
+            if net.role not in self.networks:
                 continue
             for k, layer in enumerate(activations[net.name]):
                 key = f"{net.name}/{k}"
                 width = layer.post.shape[1]
-                outgoing = np.abs(params[f"{net.outgoing(k)}.weight"]).sum(axis=0)  # before this event's writes
+                outgoing = sum(np.abs(params[f"{r}.weight"]).sum(axis=0) for r in net.readers(k))  # before this event's writes
                 now = np.abs(layer.post).mean(axis=0) * outgoing
                 u = self.utility.setdefault(key, np.zeros(width))
                 a = self.age.setdefault(key, np.zeros(width, np.int64))

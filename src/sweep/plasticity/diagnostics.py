@@ -70,10 +70,11 @@ class PlasticityDiagnostics(Hook):
 
     def measure(self, model) -> dict[str, float]:
         """The statistics of the learner's networks on its ``batch_size`` most recent observations."""
-        obs, actions, advantages, returns = model.recent_samples(self.batch_size)
-        activations = model.hidden_activations(obs)
-        pi_layers = [h.post for h in activations["policy"]]
-        vf_layers = [h.post for h in activations["value"]]
+        samples = model.recent_samples(self.batch_size)
+        activations = model.hidden_activations(samples.observations)
+        first = {net.role: net.name for net in reversed(model.networks)}   # PPO's policy and value; the actor, critic 0
+        pi_layers = [h.post for h in activations[first["policy"]]]
+        vf_layers = [h.post for h in activations[first["value"]]]
         stats: dict[str, float] = {}
         stats["dormant_ratio"], per_layer = dormant_ratio(pi_layers, self.tau)
         for i, r in enumerate(per_layer):
@@ -91,5 +92,5 @@ class PlasticityDiagnostics(Hook):
         stats["srank"] = float(srank(pi_layers[-1], self.srank_delta))
         stats["weight_norm"] = float(np.sqrt(sum(float((p.astype(np.float64) ** 2).sum())
                                                  for p in model.parameter_arrays().values())))
-        stats["grad_norm"] = model.loss_grad_norm(obs, actions, advantages, returns)
+        stats["grad_norm"] = model.loss_grad_norm(samples)
         return stats

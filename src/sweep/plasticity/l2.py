@@ -20,14 +20,10 @@ import torch
 from hydra.utils import get_class
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from sweep.config import MISSING, ConfigError, HookSettings, choice, non_empty, non_negative, remedy_blocks, runs
+from sweep.agents.networks import GROUPS
+from sweep.config import (MISSING, ConfigError, HookSettings, algorithm_of, choice, non_empty, non_negative,
+                          remedy_blocks, runs)
 from sweep.training.hooks import Hook
-
-GROUPS = {
-    "policy": ("mlp_extractor.policy_net.", "action_net."),
-    "value": ("mlp_extractor.value_net.", "value_net."),
-    "log_std": ("log_std",),
-}
 
 
 ParamGroup = choice("ParamGroup", *GROUPS)   # the words a remedy's ``params`` setting takes
@@ -38,10 +34,12 @@ def params_key() -> Any:
     return non_empty(f"a non-empty subset of [{', '.join(ParamGroup.__members__)}]")
 
 
-def penalized(name: str, params: list[str], biases: bool) -> bool:
+def penalized(name: str, params: list[str], biases: bool, groups: dict[str, tuple[str, ...]] = GROUPS) -> bool:
+    """Whether L2 acts on parameter ``name``: it belongs to one of the ``params`` groups (``groups``: the learner's
+    prefixes of each; PPO's are ``GROUPS``) and is not a bias unless ``biases``."""
     if not biases and name.endswith("bias"):
         return False
-    return any(name.startswith(prefix) for group in params for prefix in GROUPS[group])
+    return any(name.startswith(prefix) for group in params for prefix in groups.get(group, ()))
 
 
 class AnchoredAdam(torch.optim.Adam):
@@ -67,10 +65,19 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
                  anchors: dict[str, torch.Tensor] | None = None) -> torch.optim.Optimizer:
     """A copy of ``policy.optimizer`` (same lr, betas, eps, kernel) with weight decay on the chosen parameters, toward 0
     or, given ``anchors`` (name -> theta_0), toward them."""
-    old = policy.optimizer.param_groups[0]
+    return l2_copy(policy.optimizer, policy.named_parameters(), coef, mode,
+                   lambda name: penalized(name, list(params), biases), anchors)
+
+
+def l2_copy(optimizer: torch.optim.Optimizer, named_parameters, coef: float, mode: str, decayed,
+            anchors: dict[str, torch.Tensor] | None = None) -> torch.optim.Optimizer:
+    """A copy of the Adam ``optimizer`` of ``named_parameters`` (same lr, betas, eps, kernel, and state) with weight decay
+    on the parameters whose name ``decayed(name)`` accepts, toward 0 or, given ``anchors`` (name -> theta_0), toward
+    them."""
+    old = optimizer.param_groups[0]
     decay, rest, names = [], [], []
-    for name, p in policy.named_parameters():
-        if penalized(name, list(params), biases):
+    for name, p in named_parameters:
+        if decayed(name):
             decay.append(p)
             names.append(name)
         else:
@@ -79,10 +86,12 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
     if anchors is not None:
         group = {"params": decay, "anchors": [anchors[n].detach().clone() for n in names], "anchor_coef": coef,
                  "anchor_mode": mode}
-        return AnchoredAdam([group, {"params": rest}], **kwargs)
-    cls = torch.optim.Adam if mode == "coupled" else torch.optim.AdamW
-    groups = [{"params": decay, "weight_decay": coef}, {"params": rest, "weight_decay": 0.0}]
-    return cls(groups, **kwargs)
+        new = AnchoredAdam([group, {"params": rest}], **kwargs)
+    else:
+        cls = torch.optim.Adam if mode == "coupled" else torch.optim.AdamW
+        new = cls([{"params": decay, "weight_decay": coef}, {"params": rest, "weight_decay": 0.0}], **kwargs)
+    new.state.update(optimizer.state)   # Adam's moments and step counts carry over (empty when training starts)
+    return new
 
 
 @dataclass
@@ -102,7 +111,11 @@ class L2Regularization(Hook):
 
     @classmethod
     def check_config(cls, where: str, settings: dict, cfg: dict) -> None:
-        """One weight decay per run: L2 and L2-Init both set the optimizer's decay."""
+        """One weight decay per run: L2 and L2-Init both set the optimizer's decay; ``log_std`` only where there is
+        one (PPO's parameter, SAC's head; TD3's actor is deterministic)."""
+        if "log_std" in settings["params"] and algorithm_of(cfg["agent"]) == "td3":
+            raise ConfigError(f"{where}.params={settings['params']!r}: must leave out log_std with TD3 (a deterministic "
+                              "actor: no log_std)")
         others = [f"agent.{k}" for k, v in remedy_blocks(cfg["agent"]).items() if runs(v) and f"agent.{k}" != where
                   and issubclass(get_class(v["_target_"]), L2Regularization)]
         if others:

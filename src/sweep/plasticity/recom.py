@@ -31,13 +31,16 @@ The loss of each update comes from its ``UpdateRecord`` (``mean_loss``), the epi
 """
 from __future__ import annotations
 
+import math
+
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from sweep.cadence import Cadence
-from sweep.config import MISSING, ConfigError, HookSettings, choice, non_negative, positive, positive_int
+from sweep.config import (MISSING, ConfigError, HookSettings, algorithm_of, choice, non_negative, positive,
+                          positive_int)
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord, UpdateRecord
 
@@ -85,9 +88,10 @@ class Recom(Hook):
         if settings["lr_min"] > settings["lr_max"]:
             raise ConfigError(f"{where}.lr_min={settings['lr_min']!r} > {where}.lr_max={settings['lr_max']!r}: "
                               "must be lr_min <= lr_max")
-        schedule = cfg["agent"]["ppo"]["lr_schedule"]
+        algorithm = algorithm_of(cfg["agent"])
+        schedule = cfg["agent"][algorithm]["lr_schedule"]
         if schedule != "constant":
-            raise ConfigError(f"agent.ppo.lr_schedule={schedule!r}: must be constant with {where}.enabled=True "
+            raise ConfigError(f"agent.{algorithm}.lr_schedule={schedule!r}: must be constant with {where}.enabled=True "
                               "(RECOM sets the learning rate itself)")
 
     def __init__(self, interval: int = 40960, window: int = 10, gain: float = 5e-6,
@@ -120,8 +124,10 @@ class Recom(Hook):
         self.lr = learner.set_learning_rate()
 
     def after_update(self, learner, update: UpdateRecord) -> dict[str, float]:
-        """L[t] of the episodes that end from now on: the update's mean total loss."""
-        self.last_loss = update.mean_loss
+        """L[t] of the episodes that end from now on: the update's mean total loss (PPO) or mean critic loss (SAC,
+        TD3; none before learning starts)."""
+        if not math.isnan(update.mean_loss):
+            self.last_loss = update.mean_loss
         return {}
 
     def after_rollout(self, learner, rollout: RolloutRecord) -> dict[str, float]:

@@ -46,7 +46,7 @@ class ReDo(Remedy):
         surgery = UnitSurgery(learner)
         stats = {}
         for net in learner.networks:
-            if net.name not in self.networks:
+            if net.role not in self.networks:
                 continue
             for k, layer in enumerate(activations[net.name]):
                 stats[f"{net.name}_layer{k}"] = surgery.reinitialize(net, k, dormant_mask(layer.post, self.tau))

@@ -7,8 +7,8 @@ observations of the rollout the update learned from. Each logs what it did under
 (``name``: its key in the agent config). It talks to the learner only through ``sweep.agents.learner.Learner``.
 
 ``UnitSurgery`` re-initialises hidden units (ReDo, CBP): for unit i of hidden layer k, fresh incoming
-weights (row i of the layer's weight, drawn from the layer's own init), a zero bias (LayerNorm scale 1,
-shift 0), and zero outgoing weights (column i of the next layer), so the network's output is unchanged at
+weights (row i of the layer's weight, drawn from the layer's own init: ``networks.fresh_rows``), a zero bias (LayerNorm scale 1,
+shift 0), and zero outgoing weights (column i of every layer that reads it: the next layer, or the heads), so the network's output is unchanged at
 the moment of the reset; optionally Adam's moments of exactly those entries are zeroed.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from sweep.agents.learner import Learner
-from sweep.agents.networks import HIDDEN_GAIN, Network, orthogonal
+from sweep.agents.networks import Network, fresh_rows
 from sweep.config import choice, non_empty, positive_int
 from sweep.training.hooks import Hook
 from sweep.training.records import RolloutRecord, UpdateRecord
@@ -53,28 +53,20 @@ class UnitSurgery:
         units = np.asarray(units, bool)
         if not units.any():
             return 0
-        layer, out = net.hidden[k], net.outgoing(k)
+        layer = net.hidden[k]
         weight = f"{layer}.weight"
-        self.params[weight][units] = self.fresh_rows(self.params[weight].shape, int(units.sum()))
-        self.params[f"{layer}.bias"][units] = 0.0
+        self.params[weight][units] = fresh_rows(net, layer, self.params[weight].shape, int(units.sum()), self.learner.rng)
+        self.params[f"{layer}.bias"][units] = 0.0   # (a uniform init's bias too: the unit's output is then its weights')
         if net.norms[k]:
             self.params[f"{net.norms[k]}.weight"][units] = 1.0
             self.params[f"{net.norms[k]}.bias"][units] = 0.0
         incoming = [weight, f"{layer}.bias"] + ([f"{net.norms[k]}.weight", f"{net.norms[k]}.bias"] if net.norms[k] else [])
         for name in incoming:
             self._mask(name)[units] = True
-        self.params[f"{out}.weight"][:, units] = 0.0
-        self._mask(f"{out}.weight")[:, units] = True
+        for out in net.readers(k):
+            self.params[f"{out}.weight"][:, units] = 0.0
+            self._mask(f"{out}.weight")[:, units] = True
         return int(units.sum())
-
-    def fresh_rows(self, shape: tuple[int, int], k: int) -> np.ndarray:
-        """k rows of a fresh draw of a hidden layer's init (orthogonal, gain sqrt 2), from the learner's generator.
-        For a wide or square layer, k rows of a Haar-orthogonal matrix are a uniform k-frame, which is what an
-        orthogonal (k, in) draw is; a tall layer is drawn whole and k of its rows kept."""
-        rows, cols = shape
-        if rows <= cols:
-            return orthogonal((k, cols), HIDDEN_GAIN, self.learner.rng)
-        return orthogonal(shape, HIDDEN_GAIN, self.learner.rng)[:k]
 
     def commit(self, reset_adam: bool = True) -> None:
         if not self.masks:

@@ -32,6 +32,7 @@ class ResetAll(Hook):
     def at_change(self, learner: Learner, condition: Condition) -> dict[str, float]:
         shapes = {name: value.shape for name, value in learner.parameter_arrays().items()}
         learner.write_parameters(fresh_parameters(shapes, learner.networks, learner.rng))
+        learner.reset_targets()   # off-policy: the target networks copy the fresh ones (PPO has none)
         learner.reset_optimizer_state()
         self.resets += 1
         return {"remedy/reset_all/resets": float(self.resets)}

@@ -45,7 +45,7 @@ class ShrinkPerturb(Remedy):
     def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
         theta = learner.parameter_arrays()
         eps = fresh_parameters({k: v.shape for k, v in theta.items()}, learner.networks, learner.rng)
-        names = [k for k in theta if penalized(k, list(self.params), self.biases)]
+        names = [k for k in theta if penalized(k, list(self.params), self.biases, learner.groups)]
         new = {k: (self.shrink * theta[k] + self.perturb * eps[k]).astype(np.float32) for k in names}
         learner.write_parameters(new)
         norm = lambda d: float(np.sqrt(sum(float((d[k].astype(np.float64) ** 2).sum()) for k in names)))  # noqa: E731

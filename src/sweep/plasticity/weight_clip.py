@@ -47,7 +47,7 @@ def init_bounds(learner: Learner, networks: tuple[str, ...], heads: bool = True)
     shapes = {k: v.shape for k, v in learner.initial_parameters().items()}
     bounds = {}
     for net in learner.networks:
-        if net.name in networks:
+        if net.role in networks:
             for layer in net.linears if heads else net.hidden:
                 s = 1.0 / math.sqrt(shapes[f"{layer}.weight"][1])
                 bounds[f"{layer}.weight"] = bounds[f"{layer}.bias"] = s
@@ -70,8 +70,9 @@ class WeightClip(Remedy):
         learner.add_step_transform(self.clip)
 
     def clip(self, params: Mapping[str, Any], xp: Any) -> dict[str, Any]:
-        """The step transform: every clipped parameter within +-kappa s_l (``xp``: torch or jax.numpy)."""
-        return {name: xp.clip(params[name], -bound, bound) for name, bound in self.bounds.items()}
+        """The step transform: every clipped parameter of those just stepped within +-kappa s_l (``xp``: torch or
+        jax.numpy)."""
+        return {name: xp.clip(params[name], -bound, bound) for name, bound in self.bounds.items() if name in params}
 
     def act(self, learner: Learner, observations: np.ndarray | None) -> dict[str, float]:
         theta = learner.parameter_arrays()

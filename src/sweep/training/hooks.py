@@ -45,10 +45,12 @@ class Hook:
       ``Settings``      its schema: a ``sweep.config.HookSettings`` dataclass, one field per ``__init__`` argument
                         (required: a block whose class has none is a config error);
       ``check_config``  rules across keys, raising ``sweep.config.ConfigError`` before training (optional);
-      ``curves``        the ``sweep.metrics.Curve``s of what it logs, which the report draws (optional).
+      ``curves``        the ``sweep.metrics.Curve``s of what it logs, which the report draws (optional);
+      ``algorithms``    the algorithms it works with (default: all); another is refused before training.
     """
 
     name: str = ""
+    algorithms: tuple[str, ...] = ("ppo", "sac", "td3")   # the agent.algorithm values it works with (validate)
     requires: tuple[str, ...] = ()
     runs_last: bool = False
     Settings: type | None = None

@@ -1,12 +1,17 @@
-"""The training loop, the same for both learners: collect -> hooks -> log -> update -> hooks, one PPO update per turn.
+"""The training loop, the same for every learner: collect -> hooks -> log -> update -> hooks, once per round.
 
-    for each turn, until ``total_timesteps``:
+    for each round, until ``total_timesteps``:
         rollout = learner.collect()                          # RolloutRecord
         log(hooks.after_rollout(rollout) [+ hooks.at_change(condition), when the condition changed]
             + what the previous update's hooks returned)      # SB3's log line, at the timesteps after the rollout
         update = learner.update()                            # UpdateRecord
         pending = update.metrics() + hooks.after_update(update)   # logged with the next rollout's line
     log(hooks.at_end(last update)) at the final timestep
+
+A PPO round is one turn: a rollout and one update. An off-policy round (``sweep.agents.offpolicy``) is many turns of
+``train_freq`` env steps and ``gradient_steps`` gradient steps; only its last collect returns ``ends_round`` and gets
+the hooks and the log line, with the episodes of the whole round, and the update after it reports the round's
+gradient steps.
 
 This is SB3's ``learn()`` order (an update's ``train/*`` appear in the next rollout's log line, and the last
 update's never), so the logged histories are those SB3's loop wrote (tests/test_reference_history.py).
@@ -95,6 +100,9 @@ def train(training: Training, resume: dict | None = None) -> UpdateRecord | None
     update = None
     while learner.num_timesteps < total:
         rollout = learner.collect()
+        if not rollout.ends_round:   # an off-policy turn inside a round: its gradient steps, no hooks, no log line
+            learner.update()
+            continue
         metrics = t.hooks.call("after_rollout", learner, rollout)
         if t.condition is not None and rollout.condition != t.condition:
             metrics.update(t.hooks.call("at_change", learner, rollout.condition))

@@ -1,9 +1,11 @@
-"""What one rollout and one PPO update return: typed records, the only messages between a learner and the hooks.
+"""What one rollout and one update return: typed records, the only messages between a learner and the hooks.
 
 PureJaxRL's update returns its metrics; here both learners do the same (``Learner.collect`` and
 ``Learner.update``, tests/test_learner.py), and a hook reads what it needs from the record instead of from a
-logger. ``UpdateRecord.metrics()`` is what the loop logs under ``train/``, the names and values SB3's
-``PPO.train`` logs.
+logger. ``UpdateRecord.metrics()`` (PPO) and ``OffPolicyUpdate.metrics()`` (SAC, TD3) are what the loop logs under
+``train/``: the names and values SB3's ``PPO.train`` / ``SAC.train`` / ``TD3.train`` log. Both records have what a hook
+may read of any algorithm: ``index``, ``timesteps``, ``learning_rate``, ``n_updates``, ``loss`` (the NaN guard's) and
+``mean_loss`` (RECOM's); the rest is the algorithm's own.
 """
 from __future__ import annotations
 
@@ -24,12 +26,17 @@ class Episode(NamedTuple):
 
 
 class Samples(NamedTuple):
-    """The most recent steps of a rollout (``Learner.recent_samples``): what diagnostics and remedies read."""
+    """The most recent steps of a rollout or of the replay buffer (``Learner.recent_samples``): what diagnostics and
+    remedies read. PPO fills the advantages and returns; an off-policy learner the rewards, next observations and
+    dones (0 at a truncation, as SB3's replay samples)."""
 
     observations: np.ndarray
     actions: np.ndarray
-    advantages: np.ndarray
-    returns: np.ndarray
+    advantages: np.ndarray | None = None
+    returns: np.ndarray | None = None
+    rewards: np.ndarray | None = None
+    next_observations: np.ndarray | None = None
+    dones: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -68,6 +75,7 @@ class RolloutRecord:
     episodes: tuple[Episode, ...]
     mean_recent_return: float | None
     condition: Condition
+    ends_round: bool = True   # off-policy: False for the collects inside a round (no hooks, no log line; the loop)
 
 
 @dataclass(frozen=True)
@@ -109,4 +117,45 @@ class UpdateRecord:
             out["train/std"] = self.std
         out.update({"train/n_updates": self.n_updates, "train/clip_range": self.clip_range,
                     "train/learning_rate": self.learning_rate})
+        return out
+
+
+@dataclass(frozen=True)
+class OffPolicyUpdate:
+    """The gradient steps of one round of an off-policy learner (SAC, TD3): the learning rate in force, the losses as
+    means over the round's gradient steps (SB3 logs the means of one ``train()`` call; a round may hold several), the
+    steps run (0 before ``learning_starts``: no losses), SB3's ``train/n_updates`` (gradient steps so far), SAC's
+    entropy coefficient and its loss (``None`` for TD3, or with a fixed coefficient), and TD3's actor updates (the
+    steps whose actor loss was computed: every ``policy_delay``-th)."""
+
+    index: int
+    timesteps: int
+    learning_rate: float
+    gradient_steps: int
+    n_updates: int
+    critic_loss: float | None = None
+    actor_loss: float | None = None
+    ent_coef: float | None = None
+    ent_coef_loss: float | None = None
+
+    @property
+    def loss(self) -> float:
+        """The critic's TD loss (its NaN is the first sign of a diverged learner; 0 before the first step): the NaN
+        guard's reading."""
+        return 0.0 if self.critic_loss is None else float(self.critic_loss)
+
+    @property
+    def mean_loss(self) -> float:
+        """RECOM's loss L_t: the critic's mean TD loss (README: the actor's loss is -Q, whose scale follows the
+        returns, not how well the networks fit)."""
+        return float(self.critic_loss) if self.critic_loss is not None else math.nan
+
+    def metrics(self) -> dict[str, float]:
+        """SB3's ``train/*`` names and values (before the first gradient step: the learning rate and counter only)."""
+        out: dict[str, float] = {}
+        for key in ("ent_coef", "actor_loss", "critic_loss", "ent_coef_loss"):
+            value = getattr(self, key)
+            if value is not None:
+                out[f"train/{key}"] = value
+        out.update({"train/learning_rate": self.learning_rate, "train/n_updates": self.n_updates})
         return out
