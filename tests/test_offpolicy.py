@@ -2,7 +2,6 @@
 a hand-built expectation, the config's keys. The SIGKILL resume is in test_reliability.py."""
 from __future__ import annotations
 
-import copy
 import random
 
 import numpy as np
@@ -25,14 +24,19 @@ from sweep.plasticity.weight_clip import WeightClip
 from sweep.training.records import OffPolicyUpdate
 
 ALGORITHMS = ("sac", "td3")
+IMPLEMENTATIONS = ("sb3", "jax")
+BOTH = [(a, i) for a in ALGORITHMS for i in IMPLEMENTATIONS]
 OBS = np.random.default_rng(11).normal(size=(128, 13)).astype(np.float32)
 
 
-def learner(algorithm: str, overrides=(), seed: int = 0, steps: int = 0):
-    """An SB3 SAC/TD3 learner of 2 x 16 units on the hover env, trained for ``steps`` env steps (learning from 200)."""
+def learner(algorithm: str, overrides=(), seed: int = 0, steps: int = 0, impl: str = "sb3"):
+    """A SAC/TD3 learner (``impl``: SB3's or the compiled one) of 2 x 16 units on the hover env, trained for ``steps``
+    env steps (learning from 200)."""
     cfg = compose_cfg([f"agent={algorithm}", "agent.policy.net_arch=[16,16]", f"agent.{algorithm}.learning_starts=200",
-                       f"agent.{algorithm}.batch_size=32", f"agent.{algorithm}.round_steps=256", *overrides])
+                       f"agent.{algorithm}.batch_size=32", f"agent.{algorithm}.round_steps=256",
+                       f"agent.learner={impl}", *overrides])
     validate(cfg)
+    np.random.seed(seed)
     env = make_env(cfg.env, cfg.env.n_envs, wind_schedule(cfg.wind), seed, learning=True,
                    vehicle=vehicle_schedule(cfg.vehicle))
     torch.manual_seed(seed)
@@ -46,37 +50,43 @@ def learner(algorithm: str, overrides=(), seed: int = 0, steps: int = 0):
     return model
 
 
-@pytest.fixture(scope="module", params=ALGORITHMS)
+@pytest.fixture(scope="module", params=BOTH, ids=[f"{a}-{i}" for a, i in BOTH])
 def trained(request):
-    return learner(request.param, steps=400)
+    algorithm, impl = request.param
+    return learner(algorithm, steps=400, impl=impl)
 
 
 def test_the_networks_are_named_with_their_roles(trained):
     assert isinstance(trained, Learner)
     assert [(n.name, n.role) for n in trained.networks] == [("actor", "policy"), ("critic_0", "value"),
                                                             ("critic_1", "value")]
-    params = trained.parameter_arrays()
-    state = trained.policy.state_dict()
-    assert not any(k.startswith(("critic_target.", "actor_target.")) for k in params)   # targets: not trained
-    assert {k for k in params if k != "log_ent_coef"} == {k for k in state if not k.startswith(("critic_target.",
-                                                                                                "actor_target."))}
-    assert ("log_ent_coef" in params) == (trained.algorithm == "sac")
+    params, targets = trained.parameter_arrays(), trained.target_arrays()
+    state = trained.policy.state_dict()   # the torch policy's names (a shell on JAX): SB3's
+    assert set(params) | set(targets) == set(state) | ({"log_ent_coef"} if trained.algorithm == "sac" else set())
+    assert targets and all(k.startswith(("critic_target.", "actor_target.")) for k in targets)
+    assert ("actor_target.mu.0.weight" in targets) == (trained.algorithm == "td3")
     for net in trained.networks:
         for layer in net.linears:
             assert f"{layer}.weight" in params and f"{layer}.bias" in params
     acts = trained.hidden_activations(OBS)
     assert {k: [h.post.shape for h in v] for k, v in acts.items()} == {n.name: [(128, 16)] * 2 for n in trained.networks}
+    assert np.isfinite(trained.loss_grad_norm(trained.recent_samples(64)))
 
 
-def test_written_parameters_are_read_back_and_targets_follow_only_on_reset(trained):
-    model = copy.deepcopy(trained)
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_written_parameters_are_acted_on_and_targets_follow_only_on_reset(algorithm, impl):
+    model = learner(algorithm, steps=250, impl=impl)
     before = model.parameter_arrays()
-    model.write_parameters({"critic.qf0.0.bias": before["critic.qf0.0.bias"] + 1.0})
-    assert np.array_equal(model.parameter_arrays()["critic.qf0.0.bias"], before["critic.qf0.0.bias"] + 1.0)
-    target = model.critic_target.state_dict()["qf0.0.bias"].numpy()
-    assert not np.array_equal(target, before["critic.qf0.0.bias"] + 1.0)
+    acted = model.predict(OBS, deterministic=True)[0]
+    head = "actor.mu.bias" if algorithm == "sac" else "actor.mu.4.bias"
+    model.write_parameters({"critic.qf0.0.bias": before["critic.qf0.0.bias"] + 1.0, head: before[head] + 0.5})
+    after = model.parameter_arrays()
+    assert np.array_equal(after["critic.qf0.0.bias"], before["critic.qf0.0.bias"] + 1.0)
+    assert not np.allclose(model.predict(OBS, deterministic=True)[0], acted)   # the next action reads the write
+    target = "critic_target.qf0.0.bias"
+    assert not np.array_equal(model.target_arrays()[target], after["critic.qf0.0.bias"])
     model.reset_targets()
-    assert np.array_equal(model.critic_target.state_dict()["qf0.0.bias"].numpy(), before["critic.qf0.0.bias"] + 1.0)
+    assert np.array_equal(model.target_arrays()[target], after["critic.qf0.0.bias"])
 
 
 def test_fresh_parameters_draw_torchs_linear_init():
@@ -93,8 +103,9 @@ def test_fresh_parameters_draw_torchs_linear_init():
                 assert abs(new.std() / (bound / np.sqrt(3)) - 1) < 0.05 and abs(old.std() / (bound / np.sqrt(3)) - 1) < 0.05
 
 
-def test_a_round_is_many_turns_and_its_update_reports_all_their_gradient_steps():
-    model = learner("td3", overrides=["agent.td3.train_freq=2", "agent.td3.gradient_steps=3"])
+@pytest.mark.parametrize("impl", IMPLEMENTATIONS)
+def test_a_round_is_many_turns_and_its_update_reports_all_their_gradient_steps(impl):
+    model = learner("td3", overrides=["agent.td3.train_freq=2", "agent.td3.gradient_steps=3"], impl=impl)
     total = model.begin(768)
     rounds, inside = [], 0
     while model.num_timesteps < total:
@@ -112,6 +123,9 @@ def test_a_round_is_many_turns_and_its_update_reports_all_their_gradient_steps()
     first = rounds[0][1]
     assert isinstance(first, OffPolicyUpdate) and set(first.metrics()) == {
         "train/actor_loss", "train/critic_loss", "train/learning_rate", "train/n_updates"}
+    buf = model.replay_buffer
+    assert buf.pos == 768 and not buf.full and np.abs(buf.actions[:768]).max() <= 1.0
+    assert buf.timeouts[:768].sum() == sum(1 for r, _ in rounds for e in r.episodes if not e.crashed)
 
 
 def test_td3s_actor_loss_is_the_mean_over_its_delayed_steps():
@@ -124,23 +138,36 @@ def test_td3s_actor_loss_is_the_mean_over_its_delayed_steps():
     assert model._train_counts("actor_loss", 3) == 2
 
 
+def test_sb3_and_jax_sample_the_same_transitions():
+    """The JAX learner draws its replay indices as SB3's ReplayBuffer.sample does, from NumPy's global RNG."""
+    model = learner("sac", steps=300, impl="jax")
+    np.random.seed(5)
+    batches = model.replay_batches(3, 32)
+    np.random.seed(5)
+    for g in range(3):
+        sample = model.replay_buffer.sample(32)
+        for key in ("observations", "actions", "next_observations", "rewards", "dones"):
+            np.testing.assert_array_equal(batches[key][g].reshape(32, -1), sample._asdict()[key].numpy().reshape(32, -1))
+
+
 def one_gradient_step(model):
-    """One SB3 train() step from a saved state of every RNG, so two calls see the same batch and noise."""
+    """One train() step from a saved state of every RNG, so two learners see the same batch and noise."""
     state = (torch.get_rng_state(), np.random.get_state(), random.getstate())
     model.train(gradient_steps=1, batch_size=32)
     torch.set_rng_state(state[0]), np.random.set_state(state[1]), random.setstate(state[2])
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_decoupled_l2_is_adamws_shrink_on_the_chosen_networks(algorithm):
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_decoupled_l2_is_adamws_shrink_on_the_chosen_networks(algorithm, impl):
     """theta_l2 = theta_plain - lr x coef x theta_before on the decayed parameters (AdamW multiplies by 1 - lr coef
     before the Adam step, whose gradient was taken at theta_before); nothing else moves. The actor's weights: its
     step comes after the critics' (SB3's order), so no other parameter sees the decay within the step."""
-    base = learner(algorithm, steps=300)
-    base._n_updates += 1 - base._n_updates % 2   # odd: TD3's next step is an actor step (policy_delay 2)
-    plain, decayed = copy.deepcopy(base), copy.deepcopy(base)
+    plain, decayed = (learner(algorithm, steps=301, impl=impl) for _ in range(2))   # twice the same learner
+    for model in (plain, decayed):
+        model._n_updates += 1 - model._n_updates % 2   # odd: TD3's next step is an actor step (policy_delay 2)
     decayed.use_l2(0.5, mode="decoupled", params=("policy",), biases=False)
-    before = base.parameter_arrays()
+    before = plain.parameter_arrays()
+    assert all(np.array_equal(before[k], v) for k, v in decayed.parameter_arrays().items())
     one_gradient_step(plain)
     one_gradient_step(decayed)
     lr = decayed.lr_schedule(1)
@@ -162,8 +189,9 @@ def silence(model, net, layer: int, units: list[int]) -> None:
     model.write_parameters({f"{net.hidden[layer]}.{k}": params[f"{net.hidden[layer]}.{k}"] for k in ("weight", "bias")})
 
 
-def test_redo_on_sacs_last_hidden_layer_zeroes_both_heads_columns():
-    model = learner("sac", steps=400)
+@pytest.mark.parametrize("impl", IMPLEMENTATIONS)
+def test_redo_on_sacs_last_hidden_layer_zeroes_both_heads_columns(impl):
+    model = learner("sac", steps=400, impl=impl)
     actor = model.networks[0]
     silence(model, actor, 1, [2, 9])
     before, moments = model.parameter_arrays(), model.optimizer_moments()
@@ -181,25 +209,26 @@ def test_redo_on_sacs_last_hidden_layer_zeroes_both_heads_columns():
             assert np.array_equal(after[k], before[k]), k   # the critics (role value) untouched
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_reset_all_draws_fresh_networks_copies_them_to_the_targets_and_restarts_adam(algorithm):
-    model = learner(algorithm, steps=400)
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_reset_all_draws_fresh_networks_copies_them_to_the_targets_and_restarts_adam(algorithm, impl):
+    model = learner(algorithm, steps=400, impl=impl)
     before = model.parameter_arrays()
     ResetAll().at_change(model, None)
-    after = model.parameter_arrays()
+    after, targets = model.parameter_arrays(), model.target_arrays()
     assert all(not np.array_equal(after[k], before[k]) for k in before if k.endswith("weight"))
-    critic = model.critic.state_dict()
-    for k, v in model.critic_target.state_dict().items():
-        assert torch.equal(v, critic[k])
-    assert all(not opt.state for opt in model.optimizers().values())
+    for k, v in targets.items():
+        assert np.array_equal(v, after[k.replace("_target", "")]), k
+    assert all(not m.any() and not v.any() for m, v in model.optimizer_moments().values())
     if algorithm == "sac":
         assert after["log_ent_coef"] == 0.0   # ent_coef back to its init, 1
+    model.train(gradient_steps=2, batch_size=32)   # and it trains on
+    assert np.isfinite(model.parameter_arrays()["critic.qf0.0.weight"]).all()
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_shrink_perturb_and_cbp_write_only_trained_parameters(algorithm):
-    model = learner(algorithm, steps=400)
-    targets = {k: v.clone() for k, v in model.critic_target.state_dict().items()}
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_shrink_perturb_and_cbp_write_only_trained_parameters(algorithm, impl):
+    model = learner(algorithm, steps=400, impl=impl)
+    targets = model.target_arrays()
     before = model.parameter_arrays()
     ShrinkPerturb(shrink=0.5, perturb=0.5).act(model, OBS)
     after = model.parameter_arrays()
@@ -208,45 +237,46 @@ def test_shrink_perturb_and_cbp_write_only_trained_parameters(algorithm):
     cbp.setup(model, None)
     stats = cbp.act(model, OBS)
     assert stats["replaced_units"] > 0
-    assert all(torch.equal(v, targets[k]) for k, v in model.critic_target.state_dict().items())
+    assert all(np.array_equal(v, targets[k]) for k, v in model.target_arrays().items())
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_weight_clip_holds_every_step_of_both_optimizers(algorithm):
-    model = learner(algorithm, steps=250)
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_weight_clip_holds_after_every_step(algorithm, impl):
+    model = learner(algorithm, steps=250, impl=impl)
     clip = WeightClip(kappa=0.5, heads=True)
     clip.setup(model, None)
-    calls = []
-    model.add_step_transform(lambda params, xp: calls.append(1) or {})
+    if impl == "sb3":   # a step hook on each optimizer (traced once into the update on JAX)
+        calls = []
+        model.add_step_transform(lambda params, xp: calls.append(1) or {})
     model.train(gradient_steps=4, batch_size=32)
-    per_step = 2 if algorithm == "sac" else 1.5   # actor + critic optimizers; TD3's actor every 2nd step
-    assert len(calls) == int(4 * per_step)
+    if impl == "sb3":
+        assert len(calls) == (8 if algorithm == "sac" else 6)   # actor + critic steps; TD3's actor every 2nd step
     params = model.parameter_arrays()
     for name, bound in clip.bounds.items():
         assert np.abs(params[name]).max() <= bound + 1e-7, name
     assert any(np.isclose(np.abs(params[n]).max(), b) for n, b in clip.bounds.items())   # some weight at its bound
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_one_learning_rate_drives_every_optimizer(algorithm):
-    model = learner(algorithm, steps=250)
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_one_learning_rate_drives_every_optimizer(algorithm, impl):
+    model = learner(algorithm, steps=250, impl=impl)
     assert model.set_learning_rate(1.5e-5) == 1.5e-5
-    model.train(gradient_steps=2, batch_size=32)
-    for opt in model.optimizers().values():
-        assert {g["lr"] for g in opt.param_groups} == {1.5e-5}
+    record = model.update()   # the round's gradient steps, logged by the learner
+    assert record.learning_rate == 1.5e-5 and record.gradient_steps == 1
+    if impl == "sb3":
+        for opt in model.optimizers().values():
+            assert {g["lr"] for g in opt.param_groups} == {1.5e-5}
 
 
-@pytest.mark.parametrize("algorithm", ALGORITHMS)
-def test_layer_norm_networks_train_their_norms(algorithm):
-    model = learner(algorithm, overrides=["agent.policy.layer_norm=true"], steps=300)
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_layer_norm_networks_train_their_norms(algorithm, impl):
+    model = learner(algorithm, overrides=["agent.policy.layer_norm=true"], steps=300, impl=impl)
     norms = [n for net in model.networks for n in net.norms]
     assert all(norms) and len(norms) == 6
-    params = model.parameter_arrays()
-    optimized = {id(p) for opt in model.optimizers().values() for g in opt.param_groups for p in g["params"]}
-    named = model._trained()
+    params, moments = model.parameter_arrays(), model.optimizer_moments()
     for norm in norms:
-        assert f"{norm}.weight" in params and id(named[f"{norm}.weight"]) in optimized
-    assert not np.allclose(params[f"{norms[0]}.weight"], 1.0)   # trained away from its init
+        assert f"{norm}.weight" in params and moments[f"{norm}.weight"][1].any()   # optimized
+    assert not np.allclose(params[f"{norms[2]}.weight"], 1.0)   # trained away from its init
     assert set(model.hidden_activations(OBS)) == {"actor", "critic_0", "critic_1"}
 
 
@@ -260,7 +290,7 @@ INVALID = [
     (["agent=td3", "agent.td3.buffer_size=100", "agent.td3.batch_size=256"], "agent.td3.batch_size=256: must be <="),
     (["agent=sac", "agent.sac.round_steps=1", "env.n_envs=2"], "agent.sac.round_steps=1: must be >= one turn"),
     (["agent=sac", "agent.sac.learning_starts=-1"], "agent.sac.learning_starts=-1"),
-    (["agent=sac", "agent.learner=jax"], "agent.learner='jax': must be one of sb3"),
+    (["agent=sac", "agent.learner=jax", "env.backend=rotorpy"], "env.backend='rotorpy': must be fast with agent.learner=jax"),
     (["agent=td3", "+remedy@agent.l2=l2", "agent.l2.params=[log_std]"], "must leave out log_std with TD3"),
     (["agent=sac", "++agent.ppo.n_stepz=5"], "agent.ppo.n_stepz: not a config key"),
     (["agent=sac", "agent.algorithm=ppo"], "agent.ppo: missing"),

@@ -45,8 +45,9 @@ def off_policy(algorithm: str) -> list[str]:
 
 
 @pytest.mark.parametrize("config,learner,total", [(RECOM_RUN, "sb3", 6144), (RECOM_RUN, "jax", 20480),  # jax: faster
-                                                  (off_policy("sac"), "sb3", 4096), (off_policy("td3"), "sb3", 4096)],
-                         ids=["ppo-sb3", "ppo-jax", "sac-sb3", "td3-sb3"])
+                                                  (off_policy("sac"), "sb3", 4096), (off_policy("td3"), "sb3", 4096),
+                                                  (off_policy("sac"), "jax", 8192), (off_policy("td3"), "jax", 8192)],
+                         ids=["ppo-sb3", "ppo-jax", "sac-sb3", "td3-sb3", "sac-jax", "td3-jax"])
 def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, config, learner, total):
     uri = f"sqlite:///{tmp_path / 'killed.db'}"
     loss = "train/loss" if config is RECOM_RUN else "train/critic_loss"

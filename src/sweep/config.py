@@ -618,6 +618,9 @@ def _check_partial(value: Any, typ: type, where: str) -> None:
 
 def _off_policy_rules(c: DictConfig, algorithm: str) -> None:
     h = c.agent[algorithm]
+    if c.agent.learner == "jax" and c.env.backend != "fast":
+        raise ConfigError(f"env.backend={c.env.backend!r}: must be fast with agent.learner=jax (its compiled "
+                          "collect steps the fast backend)")
     if h.batch_size > h.buffer_size:
         raise ConfigError(f"agent.{algorithm}.batch_size={h.batch_size}: must be <= agent.{algorithm}.buffer_size="
                           f"{h.buffer_size}")

@@ -102,6 +102,10 @@ class Learner(Protocol):
     def initial_parameters(self) -> dict[str, np.ndarray]:
         """theta_0: the parameters as the learner was built (copies)."""
 
+    def target_arrays(self) -> dict[str, np.ndarray]:
+        """Copies of the target networks' parameters, by name (off-policy; PPO: none). Not trained, not written by
+        remedies: they follow their networks (Polyak) and ``reset_targets``."""
+
     def reset_targets(self) -> None:
         """Every target network becomes a copy of its network (off-policy; PPO has none): what a reset does."""
 

@@ -103,6 +103,10 @@ class StepwiseLearning:
         self._updates += 1
         return self._train_record()
 
+    def target_arrays(self) -> dict[str, np.ndarray]:
+        """PPO has no target networks."""
+        return {}
+
     def reset_targets(self) -> None:
         """PPO has no target networks."""
 

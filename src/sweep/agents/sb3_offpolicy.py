@@ -131,6 +131,9 @@ class _OffPolicyContract(RoundwiseLearning):
     def initial_parameters(self) -> dict[str, np.ndarray]:
         return {k: v.copy() for k, v in self._initial.items()}
 
+    def target_arrays(self) -> dict[str, np.ndarray]:
+        return {k: v.detach().numpy().copy() for k, v in self.policy.state_dict().items() if k.startswith(TARGETS)}
+
     def reset_targets(self) -> None:
         """Every target network becomes a copy of its network (as SB3 builds them)."""
         self.critic_target.load_state_dict(self.critic.state_dict())
