@@ -38,6 +38,10 @@ One table, all rows measured in this run:
   it needs the git history): the steady end-to-end rate (``experiment=paper``) of each learner with the code of
   commit BASE (default ``LOOP_BASE``, the last commit with SB3's ``learn()`` and callbacks) against NEW (default
   this tree), fresh processes, alternated; the median per-pass ratio per CPU second and per wall second;
+* the off-policy learners (``python benchmarks/bench.py offpolicy``, also part of ``make bench``): SB3's SAC and TD3
+  against the compiled ones (``agent.learner=jax``), driven turn by turn as the loop drives them, env steps/s and
+  gradient steps/s at replay ratios 1 (turns of 1 and of 8 env steps) and 0.25, fresh workers, ``REPEATS`` interleaved
+  passes, best kept; and the update's CPU roofline (its FLOPs per gradient step against this core's XLA matmul rate);
 * the report's bootstrap CIs (``python benchmarks/bench.py report``, also part of ``make bench``): P(X > Y) and the
   IQM of 16 seeds against 16 (``sweep.report.stats``, ``RESAMPLES`` resamples), the statistic computed for all
   resamples at once against rliable's own function called once per resample (the reference), best of ``REPEATS``.
@@ -574,6 +578,143 @@ def _fresh_pool_map(fn, argss):
 
 
 # ---------------------------------------------------------------------------------------------
+# off-policy learners (issue 54): SB3's SAC/TD3 against the compiled ones, and the update's roofline
+# ---------------------------------------------------------------------------------------------
+OFF_POLICY_TURNS = ((1, 1), (8, 8), (8, 2))   # (train_freq, gradient_steps): replay ratio 1 (SB3's default), 1, 0.25
+OFF_POLICY_STEPS = {"sb3": 1536, "jax": 8192}  # timed env steps per run, after learning_starts + one turn
+OFF_POLICY_WARM = 1000                        # learning_starts: filled with uniform actions first
+
+
+def offpolicy_run(algorithm: str, learner: str, train_freq: int, gradient_steps: int) -> dict:
+    """One SAC/TD3 learner (64x64 ReLU, batch 256, SB3's defaults otherwise) driven turn by turn as the project's loop
+    drives it (collect train_freq env steps, update gradient_steps) on the hover env, in this fresh process: env steps/s
+    and gradient steps/s over OFF_POLICY_STEPS env steps after the warm-up (and the JAX learner's compilation)."""
+    import torch
+
+    torch.set_num_threads(1)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    from stable_baselines3.common.utils import configure_logger
+
+    from sweep.envs.hover import HoverVecEnv
+    from sweep.envs.wind import WindSchedule
+
+    if learner == "jax":
+        from sweep.agents.jax_sac_td3 import JaxSAC as SAC, JaxTD3 as TD3
+    else:
+        from sweep.agents.sb3_offpolicy import SB3SAC as SAC, SB3TD3 as TD3
+    hyper = {"learning_starts": OFF_POLICY_WARM, "batch_size": 256, "train_freq": train_freq,
+             "gradient_steps": gradient_steps, "round_steps": 2048}
+    if algorithm == "td3":
+        hyper["action_noise_std"] = 0.1
+    env = HoverVecEnv(n_envs=1, wind=WindSchedule.constant(3.0), seed=0)
+    model = (SAC if algorithm == "sac" else TD3).from_config(env, hyper, [64, 64], "relu", 1e-8, 0)
+    model.set_logger(configure_logger(0, None, "", False))
+    model.begin(OFF_POLICY_WARM + 64 + OFF_POLICY_STEPS[learner])
+    while model.num_timesteps < OFF_POLICY_WARM + 64:
+        model.collect()
+        model.update()
+    steps0, updates0, t0 = model.num_timesteps, model._n_updates, time.perf_counter()
+    while model.num_timesteps < steps0 + OFF_POLICY_STEPS[learner]:
+        model.collect()
+        model.update()
+    wall = time.perf_counter() - t0
+    return {"env": (model.num_timesteps - steps0) / wall, "grad": (model._n_updates - updates0) / wall}
+
+
+def update_flops(algorithm: str, arch=(64, 64), obs: int = 13, act: int = 4, batch: int = 256) -> float:
+    """Float operations of one gradient step (2 per multiply-add, the Linear layers only), counted from the shapes: a
+    forward pass costs M multiply-adds per sample, a backward pass 2M where weight gradients are taken, M where only
+    the input gradient is (the critics inside the actor's loss). SAC: actor on s and s', 2 target critics, the critic
+    loss through 2 critics, the actor loss through 2 critics and the actor. TD3: target actor, 2 target critics, the
+    critic loss through 2 critics every step; the actor loss through critic 0 and the actor every policy_delay=2."""
+    def mlp(inp: int, out: int, extra_heads: int = 0) -> int:
+        sizes = (inp, *arch)
+        return sum(a * b for a, b in zip(sizes, sizes[1:])) + arch[-1] * out * (1 + extra_heads)
+    critic = mlp(obs + act, 1)
+    if algorithm == "sac":
+        actor = mlp(obs, act, extra_heads=1)
+        macs = 2 * actor + 6 * critic + 4 * critic + 2 * critic + 2 * actor
+    else:
+        actor = mlp(obs, act)
+        macs = actor + 4 * critic + 4 * critic + 0.5 * (actor + critic + critic + 2 * actor)
+    return 2.0 * macs * batch
+
+
+def matmul_peak_gflops(n: int = 512, repeats: int = 20) -> float:
+    """This core's float32 matmul rate with XLA (one thread, as the learners run): the roofline's compute roof."""
+    import jax
+    import jax.numpy as jnp
+
+    import sweep.agents.jax_ppo  # noqa: F401  (one XLA thread)
+    a = jnp.asarray(np.random.default_rng(0).standard_normal((n, n), dtype=np.float32))
+    f = jax.jit(lambda x: x @ x)
+    f(a).block_until_ready()
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        f(a).block_until_ready()
+        best = min(best, time.perf_counter() - t0)
+    return 2 * n ** 3 / best / 1e9
+
+
+def offpolicy_rows() -> list[tuple[str, str, str, str, str]]:
+    """SB3 vs JAX env steps/s and gradient steps/s, SAC and TD3, at each OFF_POLICY_TURNS, each run in a fresh worker,
+    REPEATS interleaved passes, best kept; then the update's roofline: its FLOPs per gradient step against the
+    machine's XLA matmul rate, the best time a gradient step could take and what the JAX update takes (G=256 per call)."""
+    rows = []
+    for algorithm in ("sac", "td3"):
+        for train_freq, gradient_steps in OFF_POLICY_TURNS:
+            best = {}
+            for _ in range(REPEATS):
+                for learner in ("sb3", "jax"):
+                    r = _fresh_pool_map(offpolicy_run, [(algorithm, learner, train_freq, gradient_steps)])[0]
+                    if r["env"] > best.get(learner, {"env": 0})["env"]:
+                        best[learner] = r
+                    print(algorithm, learner, train_freq, gradient_steps, {k: round(v) for k, v in r.items()}, flush=True)
+            ratio = best["jax"]["env"] / best["sb3"]["env"]
+            rr = gradient_steps / train_freq
+            rows.append((f"{algorithm.upper()} env steps/s; gradient steps/s: train_freq {train_freq}, gradient_steps "
+                         f"{gradient_steps} (replay ratio {rr:g}), sb3 vs jax",
+                         f"{best['sb3']['env']:,.0f}; {best['sb3']['grad']:,.0f}",
+                         f"{best['jax']['env']:,.0f}; {best['jax']['grad']:,.0f}", f"{ratio:.1f}x",
+                         f">= 10x: {'met' if ratio >= 10 else 'MISSED'}"))
+    peak = max(_fresh_pool_map(matmul_peak_gflops, [()])[0] for _ in range(REPEATS))
+    for algorithm in ("sac", "td3"):
+        flops = update_flops(algorithm)
+        per_step = max(_fresh_pool_map(offpolicy_update_rate, [(algorithm,)])[0] for _ in range(REPEATS))
+        roof_us = flops / (peak * 1e9) * 1e6
+        rows.append((f"{algorithm.upper()} update roofline: MFLOP per gradient step; XLA matmul GFLOP/s (512^2); "
+                     "roof us/step; JAX us/step (G=256)", f"{flops / 1e6:.1f} MFLOP; {peak:.0f} GFLOP/s",
+                     f"{roof_us:.0f} us roof; {1e6 / per_step:.0f} us", f"{roof_us * per_step / 1e6:.0%} of roof", ""))
+    return rows
+
+
+def offpolicy_update_rate(algorithm: str, steps: int = 256, repeats: int = 5) -> float:
+    """Gradient steps/s of the JAX update alone (G=``steps`` per call, a filled replay buffer), best of ``repeats``."""
+    from stable_baselines3.common.utils import configure_logger
+
+    from sweep.envs.hover import HoverVecEnv
+    from sweep.agents.jax_sac_td3 import JaxSAC, JaxTD3
+
+    hyper = {"learning_starts": OFF_POLICY_WARM, "batch_size": 256, "round_steps": 2048}
+    model = (JaxSAC if algorithm == "sac" else JaxTD3).from_config(HoverVecEnv(n_envs=1, seed=0), hyper, [64, 64],
+                                                                   "relu", 1e-8, 0)
+    model.set_logger(configure_logger(0, None, "", False))
+    model.begin(2 * OFF_POLICY_WARM)
+    while model.num_timesteps < OFF_POLICY_WARM:
+        model.collect()
+    model.train(steps, 256)   # compiles
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        model.train(steps, 256)
+        best = min(best, time.perf_counter() - t0)
+    return steps / best
+
+
+# ---------------------------------------------------------------------------------------------
 def main() -> int:
     import torch
 
@@ -602,6 +743,9 @@ def main() -> int:
         return _print_table(rows, t_start, load0)
     if sys.argv[1:2] == ["loop"]:
         rows += loop_rows(*sys.argv[2:5])
+        return _print_table(rows, t_start, load0)
+    if sys.argv[1:] == ["offpolicy"]:
+        rows += offpolicy_rows()
         return _print_table(rows, t_start, load0)
     import numba
 
@@ -716,6 +860,7 @@ def main() -> int:
     rows += study_rows()
     rows += portable_rows()
     rows += report_rows()
+    rows += offpolicy_rows()
     return _print_table(rows, t_start, load0)
 
 

@@ -17,6 +17,7 @@ from sweep.checkpoint import job_key
 from sweep.config import ConfigError, drop_unused_algorithm_blocks, one_line, validate
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.plasticity.cbp import ContinualBackprop
+from sweep.plasticity.periodic_reset import PeriodicReset
 from sweep.plasticity.redo import ReDo
 from sweep.plasticity.reset_all import ResetAll
 from sweep.plasticity.shrink_perturb import ShrinkPerturb
@@ -223,6 +224,45 @@ def test_reset_all_draws_fresh_networks_copies_them_to_the_targets_and_restarts_
         assert after["log_ent_coef"] == 0.0   # ent_coef back to its init, 1
     model.train(gradient_steps=2, batch_size=32)   # and it trains on
     assert np.isfinite(model.parameter_arrays()["critic.qf0.0.weight"]).all()
+
+
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_periodic_reset_rebuilds_everything_on_its_clock_and_keeps_the_buffer(algorithm, impl):
+    model = learner(algorithm, steps=400, impl=impl)
+    buffer = model.replay_buffer.observations[:400].copy()
+    reset = PeriodicReset(every_steps=300, layers="all")
+    before = model.parameter_arrays()
+    assert reset.after_update(model, OffPolicyUpdate(1, 256, 1e-3, 1, 1)) == {}   # before its first multiple
+    assert reset.after_update(model, OffPolicyUpdate(2, 400, 1e-3, 1, 1)) == {"remedy/periodic_reset/resets": 1.0}
+    assert reset.after_update(model, OffPolicyUpdate(3, 512, 1e-3, 1, 1)) == {}   # next at 600
+    after = model.parameter_arrays()
+    assert all(not np.array_equal(after[k], before[k]) for k in before if k.endswith("weight"))
+    assert all(np.array_equal(v, after[k.replace("_target", "")]) for k, v in model.target_arrays().items())
+    assert all(not m.any() for m, _ in model.optimizer_moments().values())
+    assert np.array_equal(model.replay_buffer.observations[:400], buffer)   # the buffer kept
+    assert reset.state_dict() == {"resets": 1, "next_at": 600}
+
+
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_periodic_reset_of_the_heads_touches_exactly_the_output_layers(algorithm, impl):
+    model = learner(algorithm, steps=400, impl=impl)
+    before, targets, moments = model.parameter_arrays(), model.target_arrays(), model.optimizer_moments()
+    PeriodicReset(every_steps=100, layers="heads").reset(model)
+    after, new_targets, new_moments = model.parameter_arrays(), model.target_arrays(), model.optimizer_moments()
+    heads = {f"{layer}.{kind}" for net in model.networks for layer in (net.head, *net.extra_heads)
+             for kind in ("weight", "bias")}
+    assert len(heads) == (8 if algorithm == "sac" else 6)
+    for k in before:
+        if k in heads:
+            assert not np.array_equal(after[k], before[k]) and not new_moments[k][0].any(), k
+            target = k.replace("actor.", "actor_target.").replace("critic.", "critic_target.")
+            if target in new_targets:
+                assert np.array_equal(new_targets[target], after[k]), target
+        else:
+            assert np.array_equal(after[k], before[k]) and np.array_equal(new_moments[k][0], moments[k][0]), k
+    for k in targets:
+        if k.replace("_target", "") not in heads:
+            assert np.array_equal(new_targets[k], targets[k]), k
 
 
 @pytest.mark.parametrize("algorithm,impl", BOTH)

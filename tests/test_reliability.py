@@ -32,26 +32,17 @@ RECOM_RUN = ["agent=recom_l2", "seed=4", "agent.ppo.n_steps=512", "agent.ppo.n_e
              "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
 
 
-# Off-policy: RECOM + L2 on SAC and TD3 with rounds of 512 steps; the replay buffer, the round so far, the exploration
-# noise and the uniform warm-up draws must all come back.
-OFF_POLICY_RUN = ["seed=4", "+remedy@agent.recom=recom", "+remedy@agent.l2=l2", "agent.recom.interval=1024",
-                  "agent.recom.window=2", "agent.recom.gain=1e-6", "agent.recom.lr_max=0.01", "train.checkpoint_every=1024",
-                  "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0", "agent.policy.net_arch=[32,32]"]
+@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 20480)])  # jax: faster, longer run
+def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, learner, total):
+    kill_then_resume(tmp_path, checkpoint_dir, [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"],
+                     total, loss="train/loss", step=512, kill_after=2048)
 
 
-def off_policy(algorithm: str) -> list[str]:
-    return [f"agent={algorithm}", *OFF_POLICY_RUN, f"agent.{algorithm}.round_steps=512",
-            f"agent.{algorithm}.learning_starts=600", f"agent.{algorithm}.batch_size=64"]
-
-
-@pytest.mark.parametrize("config,learner,total", [(RECOM_RUN, "sb3", 6144), (RECOM_RUN, "jax", 20480),  # jax: faster
-                                                  (off_policy("sac"), "sb3", 4096), (off_policy("td3"), "sb3", 4096),
-                                                  (off_policy("sac"), "jax", 8192), (off_policy("td3"), "jax", 8192)],
-                         ids=["ppo-sb3", "ppo-jax", "sac-sb3", "td3-sb3", "sac-jax", "td3-jax"])
-def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, config, learner, total):
+def kill_then_resume(tmp_path, checkpoint_dir, config: list[str], total: int, loss: str, step: int,
+                     kill_after: int) -> None:
+    """Run ``config`` as a subprocess, SIGKILL it once a checkpoint at >= ``kill_after`` timesteps exists, run the same
+    command again: one FINISHED MLflow run whose histories (log lines every ``step``) equal an uninterrupted run's."""
     uri = f"sqlite:///{tmp_path / 'killed.db'}"
-    loss = "train/loss" if config is RECOM_RUN else "train/critic_loss"
-    config = [*config, f"agent.learner={learner}", f"train.total_timesteps={total}"]
     args = [*config, f"hydra.run.dir={tmp_path / 'out'}"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
     proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=tmp_path, env=env,
@@ -60,7 +51,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     checkpoint = None
     while time.time() < deadline and proc.poll() is None:
         found = list(checkpoint_dir.glob("*/checkpoint.pt"))
-        if found and load_checkpoint(found[0])["num_timesteps"] >= 2048:
+        if found and load_checkpoint(found[0])["num_timesteps"] >= kill_after:
             checkpoint = found[0]
             break
         time.sleep(0.2)
@@ -77,7 +68,7 @@ def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoi
     assert len(runs) == 1 and runs[0].info.status == "FINISHED"
     run_id = runs[0].info.run_id
     steps = [s for s, _ in history(client, run_id, "time/total_timesteps")]
-    assert steps == list(range(512, total + 1, 512))  # strictly increasing, none missing, none duplicated
+    assert steps == list(range(step, total + 1, step))  # strictly increasing, none missing, none duplicated
 
     # The resumed run is the run that would have happened: same histories as an uninterrupted one.
     ref_uri = f"sqlite:///{tmp_path / 'reference.db'}"

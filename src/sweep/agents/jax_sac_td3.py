@@ -31,7 +31,7 @@ from sweep.agents import replay_rollout  # noqa: E402
 from sweep.agents.jax_ppo import ACTIVATIONS  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
 from sweep.agents.rollout import Mlp  # noqa: E402
-from sweep.agents.sb3_offpolicy import GROUPS, TARGETS, SB3SAC, SB3TD3  # noqa: E402
+from sweep.agents.sb3_offpolicy import GROUPS, TARGETS, SB3SAC, SB3TD3, target_of  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
 from sweep.training.records import Samples  # noqa: E402
 
@@ -231,11 +231,12 @@ class _JaxOffPolicy:
     def target_arrays(self) -> dict[str, np.ndarray]:
         return {k: np.array(v) for k, v in self.params.items() if k.startswith(TARGETS)}
 
-    def reset_targets(self) -> None:
-        for target in TARGETS:
-            source = target.replace("_target", "")
-            for k in [k for k in self.params if k.startswith(target)]:
-                self.params[k] = self.params[source + k[len(target):]]
+    def reset_targets(self, names=None) -> None:
+        names = [k for k in self.params if k.startswith(("critic.", "actor."))] if names is None else names
+        for name in names:
+            target = target_of(name)
+            if target in self.params:
+                self.params[target] = self.params[name]
 
     def optimizers(self):
         raise TypeError("the JAX learner's optimizers are opt_states, by name")

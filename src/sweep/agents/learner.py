@@ -106,8 +106,9 @@ class Learner(Protocol):
         """Copies of the target networks' parameters, by name (off-policy; PPO: none). Not trained, not written by
         remedies: they follow their networks (Polyak) and ``reset_targets``."""
 
-    def reset_targets(self) -> None:
-        """Every target network becomes a copy of its network (off-policy; PPO has none): what a reset does."""
+    def reset_targets(self, names=None) -> None:
+        """The target copies of the named parameters (None: every target network) become copies of them (off-policy;
+        PPO has none): what a reset does."""
 
     def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
         """Per network (``policy``, ``value``), each hidden layer's (pre, post) activations on ``obs``."""

@@ -107,7 +107,7 @@ class StepwiseLearning:
         """PPO has no target networks."""
         return {}
 
-    def reset_targets(self) -> None:
+    def reset_targets(self, names=None) -> None:
         """PPO has no target networks."""
 
     def recent_samples(self, n: int) -> Samples:

@@ -40,6 +40,12 @@ TARGETS = ("critic_target.", "actor_target.")
 GROUPS = {"policy": ("actor.",), "value": ("critic.",), "log_std": ("actor.log_std.",)}   # L2's params words
 
 
+def target_of(name: str) -> str:
+    """The target network's name of a trained parameter (``critic.qf0.0.weight`` -> ``critic_target.qf0.0.weight``)."""
+    head, rest = name.split(".", 1)
+    return f"{head}_target.{rest}"
+
+
 def off_policy_networks(algorithm: str, n_hidden: int, layer_norm: bool = False) -> tuple[Network, ...]:
     """(actor, critic_0, critic_1) of SB3's SAC or TD3 ``MlpPolicy``: Sequential indices Linear[, LayerNorm], act."""
     step = 3 if layer_norm else 2
@@ -134,11 +140,20 @@ class _OffPolicyContract(RoundwiseLearning):
     def target_arrays(self) -> dict[str, np.ndarray]:
         return {k: v.detach().numpy().copy() for k, v in self.policy.state_dict().items() if k.startswith(TARGETS)}
 
-    def reset_targets(self) -> None:
-        """Every target network becomes a copy of its network (as SB3 builds them)."""
-        self.critic_target.load_state_dict(self.critic.state_dict())
-        if hasattr(self, "actor_target"):
-            self.actor_target.load_state_dict(self.actor.state_dict())
+    def reset_targets(self, names=None) -> None:
+        """The target copies of the named parameters (None: every target network) become copies of them (as SB3
+        builds the targets)."""
+        if names is None:
+            self.critic_target.load_state_dict(self.critic.state_dict())
+            if hasattr(self, "actor_target"):
+                self.actor_target.load_state_dict(self.actor.state_dict())
+            return
+        state, trained = self.policy.state_dict(), self._trained()
+        with torch.no_grad():
+            for name in names:
+                target = target_of(name)
+                if target in state:
+                    state[target].copy_(trained[name])
 
     # ---- optimizers ----------------------------------------------------------------------------------
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
@@ -182,7 +197,9 @@ class _OffPolicyContract(RoundwiseLearning):
         for owner in (self.actor, self.critic):
             prefix = "actor." if owner is self.actor else "critic."
             mine = [(n, p) for n, p in named.items() if n.startswith(prefix)]
-            owner.optimizer = l2_copy(owner.optimizer, mine, coef, mode, decayed, anchors)
+            new = l2_copy(owner.optimizer, mine, coef, mode, decayed, anchors)
+            new.state.update(owner.optimizer.state)   # Adam's moments and step counts carry over (none at set-up)
+            owner.optimizer = new
         self.l2_decayed = sorted(n for n in named if decayed(n))
         self._hook_optimizer()
 

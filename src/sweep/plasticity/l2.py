@@ -71,9 +71,9 @@ def l2_optimizer(policy: ActorCriticPolicy, coef: float, mode: str = "decoupled"
 
 def l2_copy(optimizer: torch.optim.Optimizer, named_parameters, coef: float, mode: str, decayed,
             anchors: dict[str, torch.Tensor] | None = None) -> torch.optim.Optimizer:
-    """A copy of the Adam ``optimizer`` of ``named_parameters`` (same lr, betas, eps, kernel, and state) with weight decay
-    on the parameters whose name ``decayed(name)`` accepts, toward 0 or, given ``anchors`` (name -> theta_0), toward
-    them."""
+    """A copy of the Adam ``optimizer`` of ``named_parameters`` (same lr, betas, eps, kernel; a fresh state) with weight
+    decay on the parameters whose name ``decayed(name)`` accepts, toward 0 or, given ``anchors`` (name -> theta_0),
+    toward them."""
     old = optimizer.param_groups[0]
     decay, rest, names = [], [], []
     for name, p in named_parameters:
@@ -90,7 +90,6 @@ def l2_copy(optimizer: torch.optim.Optimizer, named_parameters, coef: float, mod
     else:
         cls = torch.optim.Adam if mode == "coupled" else torch.optim.AdamW
         new = cls([{"params": decay, "weight_decay": coef}, {"params": rest, "weight_decay": 0.0}], **kwargs)
-    new.state.update(optimizer.state)   # Adam's moments and step counts carry over (empty when training starts)
     return new
 
 

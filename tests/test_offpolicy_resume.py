@@ -1,0 +1,23 @@
+"""SAC and TD3, SB3's and the compiled, killed with SIGKILL mid-run and resumed by the same command: the replay buffer,
+the round so far, the exploration noise, the warm-up's uniform draws and RECOM's and L2's state all come back, and the
+metric histories equal an uninterrupted run's bit for bit (its own module: it runs beside test_reliability.py)."""
+from __future__ import annotations
+
+import pytest
+
+from test_reliability import kill_then_resume
+
+# RECOM + L2 on 32x32 networks, rounds of 512 steps, learning from step 600 (the first checkpoint at 1024 falls after
+# it and inside a round's warm-up-to-learning change), RECOM's LR free to move (lr_max 0.01 above TD3's 1e-3).
+RUN = ["seed=4", "+remedy@agent.recom=recom", "+remedy@agent.l2=l2", "agent.recom.interval=512", "agent.recom.window=2",
+       "agent.recom.gain=1e-6", "agent.recom.lr_max=0.01", "train.checkpoint_every=1024", "wind.segment_steps=2048",
+       "eval.episodes=2", "env.episode_seconds=1.0", "agent.policy.net_arch=[32,32]", "plasticity.probe.steps=50"]
+
+
+@pytest.mark.parametrize("algorithm", ["sac", "td3"])
+@pytest.mark.parametrize("learner,total", [("sb3", 3072), ("jax", 6144)])   # jax: faster, longer run
+def test_kill_minus_9_then_same_command_finishes_the_same_off_policy_run(tmp_path, checkpoint_dir, algorithm, learner,
+                                                                         total):
+    config = [f"agent={algorithm}", *RUN, f"agent.{algorithm}.round_steps=512", f"agent.{algorithm}.learning_starts=600",
+              f"agent.{algorithm}.batch_size=64", f"agent.learner={learner}", f"train.total_timesteps={total}"]
+    kill_then_resume(tmp_path, checkpoint_dir, config, total, loss="train/critic_loss", step=512, kill_after=1024)
