@@ -320,6 +320,20 @@ def test_layer_norm_networks_train_their_norms(algorithm, impl):
     assert set(model.hidden_activations(OBS)) == {"actor", "critic_0", "critic_1"}
 
 
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+@pytest.mark.parametrize("layer_norm", [False, True])
+def test_the_saved_model_is_an_sb3_zip_that_flies_the_same_policy(algorithm, impl, layer_norm, tmp_path):
+    """model.zip of either implementation loads with SB3's own SAC.load / TD3.load (LayerNorm too) and its
+    deterministic actions are the learner's."""
+    from stable_baselines3 import SAC, TD3
+
+    model = learner(algorithm, overrides=[f"agent.policy.layer_norm={str(layer_norm).lower()}"], steps=300, impl=impl)
+    model.save(tmp_path / "model.zip")
+    loaded = (SAC if algorithm == "sac" else TD3).load(tmp_path / "model.zip", device="cpu")
+    np.testing.assert_allclose(loaded.predict(OBS, deterministic=True)[0], model.predict(OBS, deterministic=True)[0],
+                               atol=2e-6)
+
+
 # ---- config ------------------------------------------------------------------------------------------------------
 INVALID = [
     (["agent=sac", "agent.sac.tau=0"], "agent.sac.tau=0: must be a number in (0, 1]"),
@@ -359,3 +373,34 @@ def test_a_hook_that_works_on_some_algorithms_refuses_the_others(monkeypatch):
     with pytest.raises(ConfigError, match=r"agent.redo: ReDo works with agent.algorithm=ppo, not with agent sac's sac"):
         validate(cfg)
     validate(compose_cfg(["agent=ppo", "+remedy@agent.redo=redo"]))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3 * 3600)
+def test_learning_curves_of_sb3_and_jax_are_equivalent(tmp_path):
+    """experiment=equivalence_offpolicy: SAC and TD3, 5 seeds x 50k timesteps per learner; for each algorithm the 95%
+    bootstrap CI of the IQM difference of the final reward (jax - sb3), from the project's report, contains 0.
+    ~30 min on 2 cores. The documented run: docs/offpolicy_learners.md."""
+    import os
+
+    import pandas as pd
+
+    from conftest import run_cli
+    from sweep.report.__main__ import main as report
+
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    proc = run_cli(["-m", "experiment=equivalence_offpolicy", "tracking.experiment=equiv",
+                    f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path, timeout=3 * 3600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    os.environ["MLFLOW_TRACKING_URI"] = uri
+    try:
+        for algorithm in ALGORITHMS:
+            out = tmp_path / f"report_{algorithm}"
+            assert report(["--experiment", "equiv", "--agents", algorithm, "--out", str(out), "--by", "agent.learner",
+                           "--baseline", "agent.learner=sb3"]) == 0
+            summary = pd.read_csv(out / "summary.csv")
+            row = summary[summary["agent.learner"] == "jax"].iloc[0]
+            assert row["n_seeds"] == 5
+            assert row["delta_iqm_ci_low"] <= 0.0 <= row["delta_iqm_ci_high"], (algorithm, row.to_dict())
+    finally:
+        del os.environ["MLFLOW_TRACKING_URI"]

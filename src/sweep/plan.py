@@ -9,6 +9,10 @@ project's 2-core reference machine, from benchmarks/RESULTS.md:
     jax      1 x 2048                    43,842   bench "JAX run end to end (experiment=paper)"
     jax      16 x 128                    47,600   the same x (e)/(d) = 55,635 / 51,258 (the bare learners' ratio)
 
+Off-policy learners (SAC, TD3: SB3's defaults, one env step and one gradient step per turn, 64x64, batch 256), the
+learner alone (bench "off-policy" rows; SB3's SAC and TD3 pay their gradient steps, so the hooks add little):
+SAC sb3 184, jax 656; TD3 sb3 329, jax 805 ts/s (``OFF_POLICY_RATES``; the turn's size and the replay ratio move them).
+
 Two runs on two cores: SB3 1.91x one run's rate, JAX 1.64x (bench rows "joblib aggregate" and "2 concurrent
 runs"). The backend ``rotorpy`` runs SB3 at 672 ts/s (row (a)). Each job also pays ~10 s of start-up (imports,
 MLflow) and evaluation (README, "Simulator backends and speed"). Another machine scales all of it.
@@ -23,6 +27,7 @@ RATES = {("sb3", False): 1_737, ("sb3", True): 3_699, ("jax", False): 43_842, ("
 ROTORPY_RATE = 672
 TWO_CORE_SPEEDUP = {"sb3": 1.91, "jax": 1.64}
 JOB_FIXED_S = 10.0  # start-up and evaluation of one job
+OFF_POLICY_RATES = {("sac", "sb3"): 184, ("sac", "jax"): 656, ("td3", "sb3"): 329, ("td3", "jax"): 805}
 JAX_VS_SB3 = 20  # ~ 43,842 / 1,737 = 25 at 1 x 2048, 47,600 / 3,699 = 13 at 16 x 128: "about a twentieth"
 
 
@@ -45,7 +50,26 @@ def job_overrides(task: list[str], sweeper_params: dict[str, str]) -> list[dict[
     return [dict(zip(keys, values)) for values in product(*(spec[k] for k in keys))]
 
 
-def run_seconds(learner: str, n_envs: int, n_steps: int, total_timesteps: int, backend: str = "fast") -> float:
+def agent_algorithm(name: str) -> str:
+    """The algorithm of conf/agent/<name>.yaml: its ``algorithm`` key, else that of the agent its defaults extend."""
+    import yaml
+
+    from sweep.tracking import PROJECT_ROOT
+
+    path = PROJECT_ROOT / "conf" / "agent" / f"{name}.yaml"
+    if not path.exists():
+        return "ppo"
+    spec = yaml.safe_load(path.read_text()) or {}
+    if "algorithm" in spec:
+        return str(spec["algorithm"])
+    parents = [d for d in spec.get("defaults", []) if isinstance(d, str) and d != "_self_"]
+    return agent_algorithm(parents[0]) if parents else "ppo"
+
+
+def run_seconds(learner: str, n_envs: int, n_steps: int, total_timesteps: int, backend: str = "fast",
+                algorithm: str = "ppo") -> float:
+    if algorithm != "ppo":
+        return total_timesteps / OFF_POLICY_RATES[(algorithm, learner)] + JOB_FIXED_S
     rate = ROTORPY_RATE if learner == "sb3" and backend != "fast" else RATES[(learner, n_envs >= 16)]
     rollout = n_envs * n_steps
     return math.ceil(total_timesteps / rollout) * rollout / rate + JOB_FIXED_S
@@ -58,8 +82,12 @@ def estimate(cfg, task: list[str], sweeper_params: dict[str, str], n_jobs: int) 
     for job in jobs:
         get = lambda key, default: job.get(key, default)  # noqa: E731
         learner = get("agent.learner", cfg.agent.learner)
-        t = run_seconds(learner, int(get("env.n_envs", cfg.env.n_envs)), int(get("agent.ppo.n_steps", cfg.agent.ppo.n_steps)),
-                        int(get("train.total_timesteps", cfg.train.total_timesteps)), get("env.backend", cfg.env.backend))
+        algorithm = agent_algorithm(get("agent", cfg.agent.name))
+        ppo = cfg.agent.get("ppo") or {}
+        n_steps = int(get("agent.ppo.n_steps", ppo.get("n_steps", 2048))) if algorithm == "ppo" else 0
+        t = run_seconds(learner, int(get("env.n_envs", cfg.env.n_envs)), n_steps,
+                        int(get("train.total_timesteps", cfg.train.total_timesteps)), get("env.backend", cfg.env.backend),
+                        algorithm)
         seconds[learner] = seconds.get(learner, 0.0) + t
     cores = os.cpu_count() or 1
     parallel = min(cores if n_jobs in (-1, None) else n_jobs, len(jobs), cores)
@@ -75,6 +103,6 @@ def announce(cfg, task: list[str], sweeper_params: dict[str, str], n_jobs: int) 
     line = (f"sweep: {n} job{'s' * (n != 1)}, expected wall time ~{_duration(wall)} on this machine "
             f"(measured rates, src/sweep/plan.py)")
     if "sb3" in learners:
-        line += (f"\nsweep: hint: agent.learner=jax runs the same PPO (tested equivalent, docs/jax_learner.md) in "
+        line += (f"\nsweep: hint: agent.learner=jax runs the same algorithm (tested equivalent, docs/jax_learner.md) in "
                  f"about 1/{JAX_VS_SB3} of the time")
     return line

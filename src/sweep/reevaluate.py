@@ -18,7 +18,8 @@ as the logged string) with the run's own config and the ``eval.*`` overrides giv
 
 The stored policies are the run artifacts ``model.zip`` (final), ``model_best.zip`` and ``model_best_eval.zip``
 (``sweep.best_policy``), kept when ``tracking.log_model`` is true; a run without them (e.g. one imported from a
-study archive without ``--artifacts model*``) is skipped and named. They load with SB3's ``PPO.load`` for both
+study archive without ``--artifacts model*``) is skipped and named. They load with SB3's ``PPO.load`` (``SAC.load``,
+``TD3.load`` for the off-policy agents' runs) for both
 learners (the JAX learner saves its policy as an SB3 model), so a JAX run's flights use torch's forward pass: under
 its own protocol its re-evaluation matches its logged evaluation up to float rounding (tests/test_reevaluate.py).
 Only the eval keys a flight depends on may change (``FLIGHT_KEYS``): the policy was trained under the rest. Every
@@ -36,15 +37,17 @@ import numpy as np
 import pandas as pd
 import torch
 from omegaconf import DictConfig, OmegaConf
-from stable_baselines3 import PPO
+from stable_baselines3 import PPO, SAC, TD3
 
 from sweep import metrics
-from sweep.config import ConfigError, validate_section
+from sweep.config import ConfigError, algorithm_of, validate_section
 from sweep.evaluate import evaluate, flight_conditions
 from sweep.report import stats
 from sweep.report.load import agent_label
 from sweep.report.tables import interval, markdown, plus_minus
 from sweep.tracking import add_to_finished_run, download_artifacts, finished_runs, parse_where, tracking_uri
+
+ALGORITHM_CLASSES = {"ppo": PPO, "sac": SAC, "td3": TD3}   # the SB3 class that loads a run's model*.zip
 
 CONFIG = "config.yaml"
 MODELS = {policy: "model.zip" if policy == "final" else f"model_{policy}.zip" for policy in metrics.POLICIES}
@@ -114,7 +117,8 @@ def fly_and_log(uri: str, run: StoredRun, name: str, overrides: list[str]) -> di
     ``<name>/`` at the step of its final evaluation, with the overrides as the tag ``reeval.<name>``."""
     total = int(run.cfg.train.total_timesteps)
     conditions = flight_conditions(run.cfg.eval, run.cfg.get("wind"), run.cfg.get("vehicle"), total, total)
-    scores = {policy: evaluate(PPO.load(path, device="cpu"), run.cfg.eval, run.cfg.env, conditions)[0]
+    cls = ALGORITHM_CLASSES[algorithm_of(run.cfg.get("agent") or {})]
+    scores = {policy: evaluate(cls.load(path, device="cpu"), run.cfg.eval, run.cfg.env, conditions)[0]
               for policy, path in run.models.items()}
     logged = {f"{name}/{metrics.eval_key(policy, key)}": value
               for policy, values in scores.items() for key, value in values.items()}

@@ -67,13 +67,15 @@ class RoundwiseLearning:
         self._round_episodes.extend(episodes.episodes)
         self._ends_round = (self.num_timesteps - self._round_from >= self.round_steps
                             or self.num_timesteps >= self._total)
-        if self._ends_round:
-            self._rollouts += 1
+        if not self._ends_round:   # a turn inside the round: the loop reads only ends_round
+            return RolloutRecord(index=self._rollouts, timesteps=int(self.num_timesteps), episodes=(),
+                                 mean_recent_return=None, condition=None, ends_round=False)
+        self._rollouts += 1
         recent = [ep["r"] for ep in self.ep_info_buffer]
         return RolloutRecord(index=self._rollouts, timesteps=int(self.num_timesteps),
-                             episodes=tuple(self._round_episodes if self._ends_round else episodes.episodes),
+                             episodes=tuple(self._round_episodes),
                              mean_recent_return=float(np.mean(recent)) if recent else None,
-                             condition=self.env.condition(), ends_round=self._ends_round)
+                             condition=self.env.condition(), ends_round=True)
 
     def log_rollout(self, iteration: int) -> None:
         """SB3's off-policy log line (``rollout/ep_rew_mean``, ``time/fps``, ...) at ``num_timesteps``."""

@@ -16,7 +16,7 @@ Networks, by name (``networks``: the trained ones; remedies pick them by role, `
 
 Optimizers, by name: ``actor``, ``critic`` (both critics) and SAC's ``ent_coef``; one learning rate drives them all, as
 in SB3 (``set_learning_rate``; RECOM sets it). ``agent.policy.layer_norm`` puts a LayerNorm between each hidden Linear
-and its activation in the actor and the critics (and their targets).
+and its activation in the actor and the critics (and their targets): ``LayerNormSACPolicy``, ``LayerNormTD3Policy``.
 """
 from __future__ import annotations
 
@@ -28,6 +28,8 @@ import torch.nn.functional as F
 from stable_baselines3 import SAC, TD3
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.sac.policies import SACPolicy
+from stable_baselines3.td3.policies import TD3Policy
 
 from sweep.agents.learner import Hidden
 from sweep.agents.networks import LAYER_NORM_EPS, Network, adam_kwargs, remedy_rng
@@ -78,6 +80,44 @@ def _with_layer_norm(mlp: torch.nn.Sequential, head: bool) -> torch.nn.Sequentia
     return torch.nn.Sequential(*out)
 
 
+def _normed_optimizer(policy, module: torch.nn.Module, lr_schedule) -> torch.optim.Optimizer:
+    return policy.optimizer_class(module.parameters(), lr=lr_schedule(1), **policy.optimizer_kwargs)
+
+
+class LayerNormSACPolicy(SACPolicy):
+    """SB3's SAC ``MlpPolicy`` with Linear -> LayerNorm -> activation in the actor and the critics (``_build`` then the
+    norms inserted, the target copied, the optimizers built over the new parameters). SB3 draws only the Linears, so
+    a seed gives the Linear weights of the plain policy; ``SAC.load`` rebuilds it from the zip."""
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        self.actor.latent_pi = _with_layer_norm(self.actor.latent_pi, head=False)
+        _norm_critics(self.critic, self.critic_target)
+        self.actor.optimizer = _normed_optimizer(self, self.actor, lr_schedule)
+        self.critic.optimizer = _normed_optimizer(self, self.critic, lr_schedule)
+
+
+class LayerNormTD3Policy(TD3Policy):
+    """SB3's TD3 ``MlpPolicy`` with LayerNorm, as ``LayerNormSACPolicy``; the actor's output layer left alone."""
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        self.actor.mu = _with_layer_norm(self.actor.mu, head=True)
+        self.actor_target.mu = _with_layer_norm(self.actor_target.mu, head=True)
+        self.actor_target.load_state_dict(self.actor.state_dict())
+        _norm_critics(self.critic, self.critic_target)
+        self.actor.optimizer = _normed_optimizer(self, self.actor, lr_schedule)
+        self.critic.optimizer = _normed_optimizer(self, self.critic, lr_schedule)
+
+
+def _norm_critics(critic, target) -> None:
+    for module in (critic, target):
+        module.q_networks = [_with_layer_norm(q, head=True) for q in module.q_networks]
+        for k, q in enumerate(module.q_networks):
+            module.add_module(f"qf{k}", q)
+    target.load_state_dict(critic.state_dict())
+
+
 class _OffPolicyContract(RoundwiseLearning):
     """The ``Learner`` contract on an SB3 SAC or TD3 (see the module docstring)."""
 
@@ -85,32 +125,11 @@ class _OffPolicyContract(RoundwiseLearning):
     groups = GROUPS
 
     def _contract_setup(self, seed: int, n_hidden: int, layer_norm: bool, round_steps: int) -> None:
-        if layer_norm:
-            self._insert_layer_norm()
         self.networks = off_policy_networks(self.algorithm, n_hidden, layer_norm)
         self.round_steps = int(round_steps)
         self.rng = remedy_rng(seed)
         self.step_transforms = []
         self._initial = self.parameter_arrays()
-
-    def _insert_layer_norm(self) -> None:
-        """LayerNorm after every hidden Linear of the actor and the critics; targets copied from them; the optimizers
-        built again over the new parameters (SB3 builds them in ``_build``, before this)."""
-        actor = self.actor
-        if self.algorithm == "sac":
-            actor.latent_pi = _with_layer_norm(actor.latent_pi, head=False)
-        else:
-            actor.mu = _with_layer_norm(actor.mu, head=True)
-            self.actor_target.mu = _with_layer_norm(self.actor_target.mu, head=True)
-            self.actor_target.load_state_dict(actor.state_dict())
-        for critic in (self.critic, self.critic_target):
-            critic.q_networks = [_with_layer_norm(q, head=True) for q in critic.q_networks]
-            for k, q in enumerate(critic.q_networks):
-                critic.add_module(f"qf{k}", q)
-        self.critic_target.load_state_dict(self.critic.state_dict())
-        kwargs = self.policy.optimizer_kwargs
-        actor.optimizer = self.policy.optimizer_class(actor.parameters(), lr=self.lr_schedule(1), **kwargs)
-        self.critic.optimizer = self.policy.optimizer_class(self.critic.parameters(), lr=self.lr_schedule(1), **kwargs)
 
     def _excluded_save_params(self) -> list[str]:
         """Not in model.zip: the per-step remedies (the hooks hold them) and the contract's own fields."""
@@ -296,7 +315,8 @@ def _activations(mlp: torch.nn.Sequential, x: torch.Tensor, head: bool = True) -
     return out
 
 
-def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps: float, seed: int) -> dict:
+def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps: float, seed: int,
+                  policy: Any = "MlpPolicy") -> dict:
     """SB3's constructor arguments from ``agent.<algorithm>`` (its own keys) and ``agent.policy``."""
     hyper = dict(hyper)
     hyper.pop("round_steps", None)
@@ -305,7 +325,7 @@ def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps:
     noise = NormalActionNoise(np.zeros(n_actions), np.full(n_actions, float(noise_std))) if noise_std else None
     policy_kwargs = {"net_arch": list(net_arch), "activation_fn": ACTIVATIONS[activation],
                      "optimizer_class": torch.optim.Adam, "optimizer_kwargs": adam_kwargs(adam_eps)}
-    return {"policy": "MlpPolicy", "env": env, "policy_kwargs": policy_kwargs, "action_noise": noise, "seed": seed,
+    return {"policy": policy, "env": env, "policy_kwargs": policy_kwargs, "action_noise": noise, "seed": seed,
             "device": "cpu", "verbose": 0, **hyper}
 
 
@@ -315,7 +335,8 @@ class SB3SAC(_OffPolicyContract, SAC):
     @classmethod
     def from_config(cls, env: VecEnv, hyper: dict, net_arch: list[int], activation: str, adam_eps: float, seed: int,
                     layer_norm: bool = False) -> "SB3SAC":
-        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed))
+        policy = LayerNormSACPolicy if layer_norm else "MlpPolicy"
+        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
         model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
         return model
 
@@ -330,7 +351,8 @@ class SB3TD3(_OffPolicyContract, TD3):
     @classmethod
     def from_config(cls, env: VecEnv, hyper: dict, net_arch: list[int], activation: str, adam_eps: float, seed: int,
                     layer_norm: bool = False) -> "SB3TD3":
-        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed))
+        policy = LayerNormTD3Policy if layer_norm else "MlpPolicy"
+        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
         model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
         return model
 

@@ -74,8 +74,9 @@ class RolloutRecord:
     timesteps: int
     episodes: tuple[Episode, ...]
     mean_recent_return: float | None
-    condition: Condition
-    ends_round: bool = True   # off-policy: False for the collects inside a round (no hooks, no log line; the loop)
+    condition: Condition | None   # None only inside an off-policy round
+    ends_round: bool = True   # off-policy: False for the collects inside a round (no hooks, no log line, no episodes,
+                              # no condition: the loop reads only this; the round's last collect has them all)
 
 
 @dataclass(frozen=True)
