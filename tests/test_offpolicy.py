@@ -299,13 +299,27 @@ def test_weight_clip_holds_after_every_step(algorithm, impl):
 
 @pytest.mark.parametrize("algorithm,impl", BOTH)
 def test_one_learning_rate_drives_every_optimizer(algorithm, impl):
+    """set_learning_rate (RECOM's handle) is the rate every optimizer steps with: at 0 no trained parameter moves
+    (Adam's step is lr x direction), at 1e-3 every optimizer's parameters move by about lr per step (Adam's first steps
+    are ~lr in size), and the record logs it."""
     model = learner(algorithm, steps=250, impl=impl)
-    assert model.set_learning_rate(1.5e-5) == 1.5e-5
+    before = model.parameter_arrays()
+    assert model.set_learning_rate(0.0) == 0.0
+    model.train(gradient_steps=2, batch_size=32)
+    assert all(np.array_equal(v, before[k]) for k, v in model.parameter_arrays().items())
+    model.set_learning_rate(1e-3)
+    model.train(gradient_steps=2, batch_size=32)   # two: TD3's actor steps every 2nd
+    after = model.parameter_arrays()
     record = model.update()   # the round's gradient steps, logged by the learner
-    assert record.learning_rate == 1.5e-5 and record.gradient_steps == 1
+    assert record.learning_rate == 1e-3 and record.gradient_steps == 1
+    moved = {k: float(np.abs(after[k] - before[k]).max()) for k in before}
+    for group in ("actor.", "critic.", "log_ent_coef"):
+        biggest = max((v for k, v in moved.items() if k.startswith(group)), default=None)
+        if biggest is not None:
+            assert 2e-4 < biggest < 6e-3, (group, biggest)   # 2 steps of ~lr (Adam: |m| / sqrt(v) ~ 1)
     if impl == "sb3":
         for opt in model.optimizers().values():
-            assert {g["lr"] for g in opt.param_groups} == {1.5e-5}
+            assert {g["lr"] for g in opt.param_groups} == {1e-3}
 
 
 @pytest.mark.parametrize("algorithm,impl", BOTH)
@@ -344,10 +358,12 @@ INVALID = [
     (["agent=td3", "agent.td3.buffer_size=100", "agent.td3.batch_size=256"], "agent.td3.batch_size=256: must be <="),
     (["agent=sac", "agent.sac.round_steps=1", "env.n_envs=2"], "agent.sac.round_steps=1: must be >= one turn"),
     (["agent=sac", "agent.sac.learning_starts=-1"], "agent.sac.learning_starts=-1"),
+    (["agent=sac", "agent.sac.target_update_interval=2"], "agent.sac.target_update_interval=2: must be 1, or <="),
+    (["agent=sac", "agent.learners.sb3._target_=sweep.agents.sb3.SB3PPO.from_config"], "builds ppo: must build"),
     (["agent=sac", "agent.learner=jax", "env.backend=rotorpy"], "env.backend='rotorpy': must be fast with agent.learner=jax"),
     (["agent=td3", "+remedy@agent.l2=l2", "agent.l2.params=[log_std]"], "must leave out log_std with TD3"),
     (["agent=sac", "++agent.ppo.n_stepz=5"], "agent.ppo.n_stepz: not a config key"),
-    (["agent=sac", "agent.algorithm=ppo"], "agent.ppo: missing"),
+    (["agent=sac", "agent.algorithm=ppo"], "builds sac: must build agent.algorithm=ppo"),
 ]
 
 

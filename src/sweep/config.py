@@ -583,6 +583,17 @@ def _vehicle_rules(c: DictConfig) -> None:
                               f"{list(segment.rotor_efficiency)}: must be another name (nominal means RotorPy's vehicle)")
 
 
+def learner_algorithm(target: str) -> str:
+    """The algorithm of the learner a ``conf/learner/`` block builds (its class's ``algorithm``)."""
+    from hydra.utils import get_method
+
+    try:
+        built = get_method(target)
+    except Exception as err:  # noqa: BLE001 - the user's target: one line
+        raise ConfigError(f"agent.learners: _target_={target!r} cannot be imported ({one_line(err)})") from None
+    return getattr(getattr(built, "__self__", built), "algorithm", "ppo")
+
+
 def algorithm_of(agent: Any) -> str:
     """The agent's algorithm (``agent.algorithm``; PPO's agents leave it at its default, ppo)."""
     return agent.get("algorithm", "ppo") or "ppo"
@@ -624,6 +635,10 @@ def _off_policy_rules(c: DictConfig, algorithm: str) -> None:
     if h.batch_size > h.buffer_size:
         raise ConfigError(f"agent.{algorithm}.batch_size={h.batch_size}: must be <= agent.{algorithm}.buffer_size="
                           f"{h.buffer_size}")
+    if algorithm == "sac" and h.target_update_interval > 1 and 0 <= h.gradient_steps < h.target_update_interval:
+        raise ConfigError(f"agent.sac.target_update_interval={h.target_update_interval}: must be 1, or <= agent.sac."
+                          f"gradient_steps={h.gradient_steps} (SB3 counts it within one update's gradient steps, from 0 "
+                          "each time: with fewer steps per update the targets move at every step)")
     if h.round_steps < h.train_freq * c.env.n_envs:
         raise ConfigError(f"agent.{algorithm}.round_steps={h.round_steps}: must be >= one turn, agent.{algorithm}."
                           f"train_freq x env.n_envs = {h.train_freq * c.env.n_envs} env steps")
@@ -647,6 +662,10 @@ def _cross_rules(c: DictConfig) -> None:
     if a.learner not in a.learners:
         raise ConfigError(f"agent.learner={a.learner!r}: must be one of {'|'.join(a.learners)} (conf/learner/)")
     algorithm = a.algorithm
+    built = learner_algorithm(a.learners[a.learner]["_target_"])
+    if built != algorithm:
+        raise ConfigError(f"agent.learners.{a.learner}._target_={a.learners[a.learner]['_target_']!r} builds {built}: "
+                          f"must build agent.algorithm={algorithm} (conf/learner/)")
     if a[algorithm] is None:
         raise ConfigError(f"agent.{algorithm}: missing; must be the hyperparameters of agent.algorithm={algorithm} "
                           "(conf/agent/ppo.yaml, sac.yaml, td3.yaml hold them)")

@@ -82,7 +82,7 @@ def estimate(cfg, task: list[str], sweeper_params: dict[str, str], n_jobs: int) 
     for job in jobs:
         get = lambda key, default: job.get(key, default)  # noqa: E731
         learner = get("agent.learner", cfg.agent.learner)
-        algorithm = agent_algorithm(get("agent", cfg.agent.name))
+        algorithm = agent_algorithm(job["agent"]) if "agent" in job else cfg.agent.get("algorithm", "ppo")
         ppo = cfg.agent.get("ppo") or {}
         n_steps = int(get("agent.ppo.n_steps", ppo.get("n_steps", 2048))) if algorithm == "ppo" else 0
         t = run_seconds(learner, int(get("env.n_envs", cfg.env.n_envs)), n_steps,

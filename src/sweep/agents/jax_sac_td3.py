@@ -8,8 +8,9 @@ reference (tests/test_jax_offpolicy.py holds one update to SB3's; tests/test_off
 * collect (``collect_rollouts``): ``train_freq`` vector steps into SB3's ``ReplayBuffer`` arrays, with SB3's exploration
   (uniform actions before ``learning_starts``, then SAC's squashed sample or TD3's tanh(mu), plus ``action_noise``);
 * update (``train``): G = ``gradient_steps`` steps in one jitted call. The replay indices are drawn as SB3's
-  ``ReplayBuffer.sample`` draws them (NumPy's global RNG, per step), so SB3 and JAX sample the same transitions for the
-  same seed; the Gaussian draws (SAC's reparameterisation, TD3's target smoothing, the exploration) come from the
+  ``ReplayBuffer.sample`` draws them (NumPy's global RNG, per step: from the same buffer and RNG state, the same
+  transitions; SB3's exploration noise draws from that RNG too, so over a run with ``action_noise_std`` the streams part);
+  the Gaussian draws (SAC's reparameterisation, TD3's target smoothing, the exploration) come from the
   learner's own generator (``noise_rng``, checkpointed), as JaxPPO's action noise does.
 * the weights live in JAX (``params``: the trained networks and their targets, ``opt_states``: one Adam per optimizer
   name); the collect reads a float32 export of the actor, refreshed after every write; the torch policy of the SB3
@@ -76,7 +77,7 @@ class _JaxOffPolicy:
             if coupled and any(sub.values()):
                 parts.append(optax.add_decayed_weights(coupled, mask=sub) if anchor is None
                              else _toward_anchor(coupled, sub, anchor))
-            parts.append(core.adam(eps))
+            parts.append(core.adam(1e-8 if name == "ent_coef" else eps))   # SB3 builds the ent_coef Adam with torch's eps
             tx[name] = optax.chain(*parts)
         old = getattr(self, "opt_states", None)
         self._tx, self.opt_states = tx, core.init_opt_states(tx, self.params)

@@ -86,11 +86,13 @@ class RoundwiseLearning:
         """SB3's ``gradient_steps`` (-1: as many as the turn's env steps, all envs)."""
         return self.gradient_steps if self.gradient_steps >= 0 else self.train_freq.frequency * self.n_envs
 
+    _last_round_steps = 0
+
     @property
     def minibatches_per_update(self) -> int:
-        """Gradient steps of one full round (CBP's maturity clock)."""
-        turns = -(-self.round_steps // (self.train_freq.frequency * self.n_envs))
-        return turns * self.gradient_steps_per_turn
+        """Gradient steps of the last round (CBP's maturity clock: 0 before ``learning_starts``, fewer in a round that
+        starts learning)."""
+        return self._last_round_steps
 
     def update(self) -> OffPolicyUpdate:
         """SB3's ``train(gradient_steps, batch_size)`` once past ``learning_starts``, as its ``learn()``; the record
@@ -115,6 +117,7 @@ class RoundwiseLearning:
                                  gradient_steps=self._round_steps_run, n_updates=int(self._n_updates), **means)
         if self._ends_round:
             self._updates += 1
+            self._last_round_steps = self._round_steps_run
             self._round_from = self.num_timesteps
             self._clear_round()
         return record
@@ -159,7 +162,7 @@ class RoundwiseLearning:
                 "replay": {"arrays": arrays, "pos": buf.pos, "full": buf.full},
                 "round": {"from": self._round_from, "episodes": list(self._round_episodes),
                           "sums": dict(self._round_sums), "counts": dict(self._round_counts),
-                          "steps": self._round_steps_run, "ends": self._ends_round},
+                          "steps": self._round_steps_run, "ends": self._ends_round, "last": self._last_round_steps},
                 "action_noise": _noise_state(self.action_noise),
                 "action_space_rng": self.action_space.np_random.bit_generator.state,   # learning_starts' uniform draws
                 "learner": self.learner_state()}
@@ -179,7 +182,7 @@ class RoundwiseLearning:
         r = state["round"]
         self._round_from, self._round_episodes = r["from"], [Episode(*e) for e in r["episodes"]]
         self._round_sums, self._round_counts = dict(r["sums"]), dict(r["counts"])
-        self._round_steps_run, self._ends_round = r["steps"], r["ends"]
+        self._round_steps_run, self._ends_round, self._last_round_steps = r["steps"], r["ends"], r["last"]
         _load_noise_state(self.action_noise, state["action_noise"])
         self.action_space.np_random.bit_generator.state = state["action_space_rng"]
 

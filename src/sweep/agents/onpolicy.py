@@ -74,6 +74,7 @@ class StepwiseLearning:
     _rollouts = 0
     _updates = 0
     groups = GROUPS   # remedies' parameter groups (``Learner.groups``)
+    algorithm = "ppo"
 
     def begin(self, timesteps: int, reset: bool = True) -> int:
         """``learn()``'s set-up for ``timesteps`` more steps (``reset``: from 0, env reset); returns the total."""
