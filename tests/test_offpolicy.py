@@ -158,15 +158,18 @@ def one_gradient_step(model):
     torch.set_rng_state(state[0]), np.random.set_state(state[1]), random.setstate(state[2])
 
 
+@pytest.mark.parametrize("anchor", ["zero", "init"])
 @pytest.mark.parametrize("algorithm,impl", BOTH)
-def test_decoupled_l2_is_adamws_shrink_on_the_chosen_networks(algorithm, impl):
-    """theta_l2 = theta_plain - lr x coef x theta_before on the decayed parameters (AdamW multiplies by 1 - lr coef
-    before the Adam step, whose gradient was taken at theta_before); nothing else moves. The actor's weights: its
-    step comes after the critics' (SB3's order), so no other parameter sees the decay within the step."""
+def test_decoupled_l2_is_adamws_shrink_on_the_chosen_networks(algorithm, impl, anchor):
+    """theta_l2 = theta_plain - lr x coef x (theta_before - anchor) on the decayed parameters (AdamW multiplies by
+    1 - lr coef before the Adam step, whose gradient was taken at theta_before; L2-Init pulls toward theta_0 instead of
+    0); nothing else moves. The actor's weights: its step comes after the critics' (SB3's order), so no other
+    parameter sees the decay within the step."""
     plain, decayed = (learner(algorithm, steps=301, impl=impl) for _ in range(2))   # twice the same learner
     for model in (plain, decayed):
         model._n_updates += 1 - model._n_updates % 2   # odd: TD3's next step is an actor step (policy_delay 2)
-    decayed.use_l2(0.5, mode="decoupled", params=("policy",), biases=False)
+    decayed.use_l2(0.5, mode="decoupled", params=("policy",), biases=False, anchor=anchor)
+    theta_0 = decayed.initial_parameters() if anchor == "init" else {k: 0.0 for k in decayed.initial_parameters()}
     before = plain.parameter_arrays()
     assert all(np.array_equal(before[k], v) for k, v in decayed.parameter_arrays().items())
     one_gradient_step(plain)
@@ -176,7 +179,7 @@ def test_decoupled_l2_is_adamws_shrink_on_the_chosen_networks(algorithm, impl):
     assert decayed.l2_decayed == sorted(k for k in before if k.startswith("actor.") and k.endswith("weight"))
     for k in before:
         if k in decayed.l2_decayed:
-            np.testing.assert_allclose(b[k], a[k] - lr * 0.5 * before[k], atol=2e-7)
+            np.testing.assert_allclose(b[k], a[k] - lr * 0.5 * (before[k] - theta_0[k]), atol=2e-7)
             assert not np.allclose(b[k], a[k])
         else:
             np.testing.assert_array_equal(b[k], a[k])
@@ -263,6 +266,40 @@ def test_periodic_reset_of_the_heads_touches_exactly_the_output_layers(algorithm
     for k in targets:
         if k.replace("_target", "") not in heads:
             assert np.array_equal(new_targets[k], targets[k]), k
+
+
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_shrink_and_perturb_is_its_formula_on_the_trained_networks(algorithm, impl):
+    """theta <- shrink theta + perturb eps, eps a fresh draw of each layer's init from the learner's generator, on the
+    actor and the critics (and SAC's log_ent_coef, a parameter of no network: its fresh value is 0)."""
+    model = learner(algorithm, steps=300, impl=impl)
+    theta = model.parameter_arrays()
+    rng = np.random.default_rng()
+    rng.bit_generator.state = model.rng.bit_generator.state
+    eps = fresh_parameters({k: v.shape for k, v in theta.items()}, model.networks, rng)
+    ShrinkPerturb(shrink=0.8, perturb=0.2).act(model, OBS)
+    after = model.parameter_arrays()
+    for k in theta:
+        if k.startswith(("actor.", "critic.")):
+            np.testing.assert_allclose(after[k], 0.8 * theta[k] + 0.2 * eps[k], rtol=1e-6, atol=1e-7)
+        else:
+            np.testing.assert_array_equal(after[k], theta[k])
+
+
+@pytest.mark.parametrize("algorithm,impl", BOTH)
+def test_the_lr_decay_controls_drive_every_optimizer(algorithm, impl):
+    """agent.<algorithm>.lr_schedule=linear: the rate each update uses falls with the run's progress, as PPO's."""
+    model = learner(algorithm, overrides=[f"agent.{algorithm}.lr_schedule=linear", f"agent.{algorithm}.lr_floor=0.0"],
+                    impl=impl)
+    lr_0 = model.lr_schedule(1.0)
+    total = model.begin(1024)
+    rates = []
+    while model.num_timesteps < total:
+        model.collect()
+        record = model.update()
+        if record.gradient_steps:
+            rates.append(record.learning_rate)
+    assert rates == sorted(rates, reverse=True) and rates[-1] < 0.25 * lr_0 < rates[0]
 
 
 @pytest.mark.parametrize("algorithm,impl", BOTH)
