@@ -18,6 +18,7 @@ reference (tests/test_jax_offpolicy.py holds one update to SB3's; tests/test_off
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Mapping
 
 from sweep.agents import jax_offpolicy as core   # first: jax_ppo's XLA flags and one-thread CPU client
@@ -37,8 +38,74 @@ from sweep.plasticity.l2 import penalized  # noqa: E402
 from sweep.training.records import Samples  # noqa: E402
 
 
+class Packing:
+    """A pytree of arrays <-> one float32 vector and one int32 vector (its float leaves, then its integer leaves, in
+    tree order): the compiled update takes and returns the learner's state as these few arrays, since a jitted call
+    costs ~3.5 us per array it takes or returns (~85 here: ~0.3 ms a turn, measured)."""
+
+    def __init__(self, tree) -> None:
+        leaves, self.treedef = jax.tree_util.tree_flatten(tree)
+        self.shapes = [tuple(np.shape(x)) for x in leaves]
+        self.ints = [bool(np.issubdtype(np.asarray(x).dtype, np.integer)) for x in leaves]
+        self.offsets, offset = [], 0
+        for shape, is_int in zip(self.shapes, self.ints):
+            self.offsets.append(offset)
+            offset += 0 if is_int else int(np.prod(shape, dtype=np.int64))
+
+    def pack(self, tree, xp=jnp):
+        leaves = jax.tree_util.tree_leaves(tree)
+        floats = [xp.ravel(x).astype(xp.float32) for x, i in zip(leaves, self.ints) if not i]
+        ints = [xp.reshape(x, (-1,)).astype(xp.int32) for x, i in zip(leaves, self.ints) if i]
+        return (xp.concatenate(floats) if floats else xp.zeros(0, xp.float32),
+                xp.concatenate(ints) if ints else xp.zeros(0, xp.int32))
+
+    def unpack(self, floats, ints):
+        """The tree from the two vectors (inside a jitted function: static slices; on the host: NumPy views)."""
+        leaves, k = [], 0
+        for shape, is_int, offset in zip(self.shapes, self.ints, self.offsets):
+            if is_int:
+                leaves.append(ints[k].reshape(shape))
+                k += 1
+            else:
+                leaves.append(floats[offset:offset + int(np.prod(shape, dtype=np.int64))].reshape(shape))
+        return jax.tree_util.tree_unflatten(self.treedef, leaves)
+
+
 class _JaxOffPolicy:
-    """The compiled learner over an SB3 SAC/TD3 (mixed in before ``SB3SAC`` / ``SB3TD3``: see the module docstring)."""
+    """The compiled learner over an SB3 SAC/TD3 (mixed in before ``SB3SAC`` / ``SB3TD3``: see the module docstring).
+
+    Its state lives packed (``Packing``): the parameters (networks, targets, ``log_ent_coef``) as one float vector, the
+    optimizers' states as a float and an int vector; ``params`` and ``opt_states`` are their views as SB3-named dicts
+    (set either to write)."""
+
+    _params_view = None
+    _opt_view = None
+
+    @property
+    def params(self) -> dict[str, jax.Array]:
+        if self._params_view is None:
+            self._params_view = self._param_packing.unpack(self._fp, self._ip)
+        return dict(self._params_view)
+
+    @params.setter
+    def params(self, value) -> None:
+        value = {k: jnp.asarray(v) for k, v in value.items()}
+        if getattr(self, "_param_packing", None) is None:
+            self._param_packing = Packing(value)
+        self._fp, self._ip = self._param_packing.pack(value)
+        self._params_view = value
+
+    @property
+    def opt_states(self) -> dict[str, Any]:
+        if self._opt_view is None:
+            self._opt_view = self._opt_packing.unpack(self._fo, self._io)
+        return dict(self._opt_view)
+
+    @opt_states.setter
+    def opt_states(self, value) -> None:
+        self._opt_packing = Packing(value)
+        self._fo, self._io = self._opt_packing.pack(value)
+        self._opt_view = value
 
     def _contract_setup(self, seed: int, n_hidden: int, layer_norm: bool, round_steps: int) -> None:
         """The SB3 class's set-up (networks named, theta_0), then the JAX state: the parameters SB3 drew for the seed
@@ -54,8 +121,9 @@ class _JaxOffPolicy:
         return "relu" if self.policy.activation_fn.__name__ == "ReLU" else "tanh"
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "params", "opt_states", "_tx", "_update", "_actor", "noise_rng",
-                "_act", "_activations", "_grad_norm", "_decay", "l2_spec"]
+        return [*super()._excluded_save_params(), "_fp", "_ip", "_fo", "_io", "_param_packing", "_opt_packing",
+                "_params_view", "_opt_view", "_tx", "_update", "_actor", "noise_rng", "_act", "_activations",
+                "_grad_norm", "_decay", "l2_spec"]
 
     # ---- optimizers and the compiled update -------------------------------------------------------------
     def _build_optimizer(self, carry: bool = False) -> None:
@@ -94,12 +162,18 @@ class _JaxOffPolicy:
         if self.algorithm == "sac":
             auto = getattr(self, "ent_coef_optimizer", None) is not None
             target = None if self.target_entropy == -float(self.action_space.shape[0]) else float(self.target_entropy)
-            self._update = core.compiled(core.sac_update, **settings, target_update_interval=self.target_update_interval,
-                                         ent_coef=None if auto else float(self.ent_coef_tensor), target_entropy=target)
+            update = partial(core.sac_update, **settings, target_update_interval=self.target_update_interval,
+                             ent_coef=None if auto else float(self.ent_coef_tensor), target_entropy=target)
         else:
-            self._update = core.compiled(core.td3_update, **settings, policy_delay=self.policy_delay,
-                                         target_policy_noise=float(self.target_policy_noise),
-                                         target_noise_clip=float(self.target_noise_clip))
+            update = partial(core.td3_update, **settings, policy_delay=self.policy_delay,
+                             target_policy_noise=float(self.target_policy_noise),
+                             target_noise_clip=float(self.target_noise_clip))
+        params, opt = self._param_packing, self._opt_packing
+
+        def packed(fp, ip, fo, io, batches, noise, lr, n_updates):
+            new_params, new_opt, stats = update(params.unpack(fp, ip), opt.unpack(fo, io), batches, noise, lr, n_updates)
+            return (*params.pack(new_params), *opt.pack(new_opt), stats)
+        self._update = jax.jit(packed)
         act, sac = self._act, self.algorithm == "sac"
         self._activations = jax.jit(lambda p, obs: _hidden(p, obs, act, sac))
         self._grad_norm = jax.jit(lambda p, batch: _critic_grad_norm(p, batch, act, sac, float(self.gamma)))
@@ -211,13 +285,14 @@ class _JaxOffPolicy:
                      "next": self.noise_rng.standard_normal(shape, dtype=np.float32)}
         else:
             noise = self.noise_rng.standard_normal(shape, dtype=np.float32)
-        self.params, self.opt_states, stats = self._update(self.params, self.opt_states, batches, noise, lr,
-                                                           self._n_updates)
-        stats, actor = jax.device_get((stats, {k: v for k, v in self.params.items() if k.startswith("actor.")}))
+        self._fp, self._ip, self._fo, self._io, stats = self._update(self._fp, self._ip, self._fo, self._io, batches,
+                                                                     noise, lr, self._n_updates)
+        self._params_view = self._opt_view = None
+        stats, host = jax.device_get((stats, self._fp))   # one transfer: the logged values and the actor's weights
         for key, value in core.sb3_logs(stats, self._n_updates, lr).items():
             self.logger.record(key, value)
         self._n_updates += gradient_steps
-        self._export_actor(actor)
+        self._export_actor(self._param_packing.unpack(host, np.zeros(0, np.int32)))
 
     # ---- the contract ---------------------------------------------------------------------------------------
     def _trained(self):
@@ -227,21 +302,25 @@ class _JaxOffPolicy:
         return {k: np.array(v) for k, v in self.params.items() if not k.startswith(TARGETS)}
 
     def write_parameters(self, arrays: Mapping[str, np.ndarray]) -> None:
+        params = self.params
         for name, value in arrays.items():
-            if name.startswith(TARGETS) or np.shape(value) != self.params[name].shape:
-                raise ValueError(f"{name}: not a trained parameter of shape {self.params[name].shape}")
-            self.params[name] = jnp.asarray(np.array(value, dtype=np.float32))
+            if name.startswith(TARGETS) or np.shape(value) != params[name].shape:
+                raise ValueError(f"{name}: not a trained parameter of shape {params[name].shape}")
+            params[name] = jnp.asarray(np.array(value, dtype=np.float32))
+        self.params = params
         self._export_actor()
 
     def target_arrays(self) -> dict[str, np.ndarray]:
         return {k: np.array(v) for k, v in self.params.items() if k.startswith(TARGETS)}
 
     def reset_targets(self, names=None) -> None:
-        names = [k for k in self.params if k.startswith(("critic.", "actor."))] if names is None else names
+        params = self.params
+        names = [k for k in params if k.startswith(("critic.", "actor."))] if names is None else names
         for name in names:
             target = target_of(name)
-            if target in self.params:
-                self.params[target] = self.params[name]
+            if target in params:
+                params[target] = params[name]
+        self.params = params
 
     def optimizers(self):
         raise TypeError("the JAX learner's optimizers are opt_states, by name")
@@ -257,13 +336,15 @@ class _JaxOffPolicy:
         self.opt_states = core.init_opt_states(self._tx, self.params)
 
     def reset_optimizer(self, masks: Mapping[str, np.ndarray]) -> None:
-        for name, state in self.opt_states.items():
+        states = self.opt_states
+        for name, state in states.items():
             adam = core.adam_state(state)
             keep = {k: jnp.asarray(~np.asarray(masks[k], bool)) for k in adam.mu if k in masks}
             if keep:
                 zeroed = adam._replace(mu={k: v * keep[k] if k in keep else v for k, v in adam.mu.items()},
                                        nu={k: v * keep[k] if k in keep else v for k, v in adam.nu.items()})
-                self.opt_states[name] = _with_adam(state, zeroed)
+                states[name] = _with_adam(state, zeroed)
+        self.opt_states = states
 
     def hidden_activations(self, obs: np.ndarray) -> dict[str, list[Hidden]]:
         """Per network, each hidden layer's (pre, post): the actor on ``obs``, the critics at its deterministic action."""
