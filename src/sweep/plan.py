@@ -54,9 +54,9 @@ def agent_algorithm(name: str) -> str:
     """The algorithm of conf/agent/<name>.yaml: its ``algorithm`` key, else that of the agent its defaults extend."""
     import yaml
 
-    from sweep.tracking import PROJECT_ROOT
+    from sweep.config import REMEDY_GROUP
 
-    path = PROJECT_ROOT / "conf" / "agent" / f"{name}.yaml"
+    path = REMEDY_GROUP.parent / "agent" / f"{name}.yaml"
     if not path.exists():
         return "ppo"
     spec = yaml.safe_load(path.read_text()) or {}

@@ -123,6 +123,21 @@ class _OffPolicyContract(RoundwiseLearning):
 
     algorithm = ""
     groups = GROUPS
+    layer_norm_policy: type   # the SB3 policy class with LayerNorm
+    logged: tuple[str, ...]   # SB3's train/* keys of one train() call that a round averages
+
+    @classmethod
+    def from_config(cls, env: VecEnv, hyper: dict, net_arch: list[int], activation: str, adam_eps: float, seed: int,
+                    layer_norm: bool = False):
+        """The learner of ``agent.<algorithm>`` (SB3's arguments, ``round_steps``, ``action_noise_std``) and
+        ``agent.policy``."""
+        policy = cls.layer_norm_policy if layer_norm else "MlpPolicy"
+        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
+        model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
+        return model
+
+    def _train_stats(self, logged: dict[str, float]) -> dict[str, float]:
+        return {k.split("/", 1)[1]: v for k, v in logged.items() if k in self.logged}
 
     def _contract_setup(self, seed: int, n_hidden: int, layer_norm: bool, round_steps: int) -> None:
         self.networks = off_policy_networks(self.algorithm, n_hidden, layer_norm)
@@ -331,33 +346,14 @@ def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps:
 
 class SB3SAC(_OffPolicyContract, SAC):
     algorithm = "sac"
-
-    @classmethod
-    def from_config(cls, env: VecEnv, hyper: dict, net_arch: list[int], activation: str, adam_eps: float, seed: int,
-                    layer_norm: bool = False) -> "SB3SAC":
-        policy = LayerNormSACPolicy if layer_norm else "MlpPolicy"
-        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
-        model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
-        return model
-
-    def _train_stats(self, logged: dict[str, float]) -> dict[str, float]:
-        return {k.split("/", 1)[1]: v for k, v in logged.items()
-                if k in ("train/ent_coef", "train/actor_loss", "train/critic_loss", "train/ent_coef_loss")}
+    layer_norm_policy = LayerNormSACPolicy
+    logged = ("train/ent_coef", "train/actor_loss", "train/critic_loss", "train/ent_coef_loss")
 
 
 class SB3TD3(_OffPolicyContract, TD3):
     algorithm = "td3"
-
-    @classmethod
-    def from_config(cls, env: VecEnv, hyper: dict, net_arch: list[int], activation: str, adam_eps: float, seed: int,
-                    layer_norm: bool = False) -> "SB3TD3":
-        policy = LayerNormTD3Policy if layer_norm else "MlpPolicy"
-        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
-        model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
-        return model
-
-    def _train_stats(self, logged: dict[str, float]) -> dict[str, float]:
-        return {k.split("/", 1)[1]: v for k, v in logged.items() if k in ("train/actor_loss", "train/critic_loss")}
+    layer_norm_policy = LayerNormTD3Policy
+    logged = ("train/actor_loss", "train/critic_loss")
 
     def _train_counts(self, key: str, steps: int) -> int:
         """TD3's logged actor loss is the mean over the delayed steps of the call, one per ``policy_delay``."""
