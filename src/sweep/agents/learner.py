@@ -1,11 +1,16 @@
-"""``Learner``: the one contract between a PPO learner and everything that reads or writes its networks.
+"""``Learner``: the one contract between a learner (PPO, SAC, TD3) and everything that reads or writes its networks.
 
-``SB3PPO`` (the reference) and ``JaxPPO`` (its compiled equivalent) both implement it, and remedies,
-diagnostics and checkpoints use nothing else: no ``isinstance`` on the learner, no ``model.policy``, no
-private SB3 fields outside the two learner modules. tests/test_learner.py holds both to it.
+``SB3PPO``, ``SB3SAC``, ``SB3TD3`` (SB3's own classes, the references) and ``JaxPPO``, ``JaxSAC``, ``JaxTD3`` (their
+compiled equivalents) implement it, and remedies, diagnostics and checkpoints use nothing else: no ``isinstance`` on
+the learner, no ``model.policy``, no private SB3 fields outside the learner modules. tests/test_learner.py and
+tests/test_offpolicy.py hold them to it.
 
-Parameters are NumPy arrays named as SB3's ``ActorCriticPolicy.state_dict`` in torch's (out, in) layout;
-``networks`` says which arrays form which layer (``sweep.agents.networks``).
+Parameters are NumPy arrays named as the SB3 policy's ``state_dict`` in torch's (out, in) layout (SAC's entropy
+coefficient as ``log_ent_coef``); ``networks`` says which arrays form which layer of each *trained* network, with its
+role (``policy``: PPO's policy network, the actor; ``value``: PPO's value network, each critic) that remedy settings
+name (``sweep.agents.networks``). Target networks are not parameters: ``target_arrays`` reads them, ``reset_targets``
+copies the networks into them, nothing else writes them. ``groups`` maps the words of a remedy's ``params`` setting
+to parameter-name prefixes.
 
 Random state. A remedy draws only from ``learner.rng`` (``networks.remedy_rng(seed)``), never from a global
 RNG; ``learner_state`` holds that generator and every other one the learner owns (JAX: its action noise),
@@ -14,9 +19,11 @@ PPO's minibatch order from NumPy's *global* RNG (``np.random.permutation`` per e
 ``RolloutBuffer.get`` does: that keeps the two learners update-for-update equal for the same seed, and is
 why a remedy must never touch ``np.random``.
 
-The loop (``sweep.training.loop``) drives a learner one step at a time: ``begin``, then per iteration ``collect``
-(a ``RolloutRecord``), ``log_rollout`` and ``update`` (an ``UpdateRecord``); ``sweep.agents.onpolicy`` implements
-these for both learners on SB3's own ``OnPolicyAlgorithm`` steps. Nothing outside the learner modules reads SB3's
+The loop (``sweep.training.loop``) drives a learner one turn at a time: ``begin``, then per turn ``collect``
+(a ``RolloutRecord``), ``log_rollout`` (at a round's end) and ``update`` (an ``UpdateRecord``, SAC/TD3: an
+``OffPolicyUpdate``); ``sweep.agents.onpolicy`` implements these for PPO on SB3's ``OnPolicyAlgorithm`` steps (a turn
+is a round: one rollout, one update), ``sweep.agents.offpolicy`` for SAC and TD3 (a turn is ``train_freq`` env steps
+and ``gradient_steps`` gradient steps; a round, ``round_steps`` env steps). Nothing outside the learner modules reads SB3's
 loop fields (logger values, ``rollout_buffer``, ``ep_info_buffer``, ``lr_schedule``; tests/test_learner.py).
 
 Per-step remedies. ``add_step_transform(t)``: ``t`` (a ``StepTransform``) acts on the parameters after every
@@ -69,7 +76,7 @@ class Learner(Protocol):
         """Set up for ``timesteps`` more steps (``reset``: from 0, env reset); returns the timestep to train to."""
 
     def collect(self) -> RolloutRecord:
-        """One rollout into the rollout buffer."""
+        """One turn's env steps into the rollout buffer (PPO) or the replay buffer (SAC, TD3)."""
 
     def set_logger(self, logger) -> None:
         """The SB3 ``Logger`` the learner's log lines go to (the loop's: written to, never read)."""
@@ -78,10 +85,10 @@ class Learner(Protocol):
         """Write the rollout's log line (``rollout/*``, ``time/*``) with everything recorded since the last."""
 
     def update(self) -> UpdateRecord:
-        """One PPO update on the last rollout."""
+        """The turn's update: one PPO update on the last rollout, or SAC's/TD3's gradient steps on the replay buffer."""
 
     def recent_samples(self, n: int) -> Samples:
-        """The ``n`` most recent steps of the last rollout."""
+        """The ``n`` most recent steps of the last rollout (PPO) or transitions of the replay buffer (SAC, TD3)."""
 
     def set_learning_rate(self, value: float | None = None) -> float:
         """Every following update uses ``value`` (None: the rate in force now); returns it."""
