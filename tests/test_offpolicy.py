@@ -129,14 +129,32 @@ def test_a_round_is_many_turns_and_its_update_reports_all_their_gradient_steps(i
     assert buf.timeouts[:768].sum() == sum(1 for r, _ in rounds for e in r.episodes if not e.crashed)
 
 
-def test_td3s_actor_loss_is_the_mean_over_its_delayed_steps():
-    """SB3 logs the mean actor loss of one train() call over the steps that updated the actor (every policy_delay-th
-    counted from the first gradient step); a round weighs each call's mean by its delayed steps."""
+def test_td3s_round_actor_loss_weighs_each_update_by_its_actor_steps():
+    """SB3 logs one train() call's actor loss as the mean over the steps that updated the actor (every policy_delay-th,
+    counted from the first gradient step); the round's train/actor_loss is the mean over all the round's actor steps:
+    each call's logged mean weighed by the actor steps it ran, counted here on the actor's optimizer itself."""
     model = learner("td3", overrides=["agent.td3.gradient_steps=3"])
-    model._n_updates = 7   # after a call whose steps were 5, 6, 7: one actor step (6)
-    assert model._train_counts("actor_loss", 3) == 1 and model._train_counts("critic_loss", 3) == 3
-    model._n_updates = 6   # steps 4, 5, 6: two (4, 6)
-    assert model._train_counts("actor_loss", 3) == 2
+    calls, steps = [], []
+    optimizer_step = model.actor.optimizer.step
+
+    def counted_step(*args, **kwargs):
+        steps[-1] += 1
+        return optimizer_step(*args, **kwargs)
+    model.actor.optimizer.step = counted_step
+    train = model.train
+
+    def recorded_train(gradient_steps, batch_size):
+        steps.append(0)
+        train(gradient_steps=gradient_steps, batch_size=batch_size)
+        calls.append(model.logger.name_to_value.get("train/actor_loss"))
+    model.train = recorded_train
+    total = model.begin(256)
+    while model.num_timesteps < total:
+        model.collect()
+        record = model.update()
+    assert sum(steps) == record.gradient_steps // 2 and set(steps) == {1, 2}   # 3 steps per call: 1 or 2 actor steps
+    expected = sum(loss * n for loss, n in zip(calls, steps) if n) / sum(steps)
+    assert record.actor_loss == pytest.approx(expected, rel=1e-9)
 
 
 def test_sb3_and_jax_sample_the_same_transitions():
