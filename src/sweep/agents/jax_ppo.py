@@ -224,7 +224,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
         if coupled and anchor is None:  # torch Adam(weight_decay): g <- g + coef * theta, before the moments
             transforms.append(optax.add_decayed_weights(coupled, mask=mask))
         elif coupled:  # L2-Init, coupled: g <- g + coef * (theta - theta_0)
-            transforms.append(_toward_anchor(coupled, mask, anchor))
+            transforms.append(toward_anchor(coupled, mask, anchor))
         transforms.append(optax.scale_by_adam(b1=0.9, b2=0.999, eps=self.adam_eps))
         self._tx = optax.chain(*transforms)
         self.opt_state = self._tx.init(self.params)
@@ -452,7 +452,7 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
 # ------------------------------------------------------------------------------------------------
 # Jitted functions (module level so the partials above only bind static settings)
 # ------------------------------------------------------------------------------------------------
-def _toward_anchor(coef: float, mask: dict[str, bool], anchor: Params) -> optax.GradientTransformation:
+def toward_anchor(coef: float, mask: dict[str, bool], anchor: Params) -> optax.GradientTransformation:
     """Coupled L2-Init: g <- g + coef * (theta - theta_0) on the masked parameters (before Adam's moments)."""
     def update(grads, state, params):
         return {k: grads[k] + coef * (params[k] - anchor[k]) if mask[k] else grads[k] for k in grads}, state

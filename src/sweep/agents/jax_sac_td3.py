@@ -30,7 +30,7 @@ import optax  # noqa: E402
 from stable_baselines3.common.type_aliases import RolloutReturn  # noqa: E402
 
 from sweep.agents import replay_rollout  # noqa: E402
-from sweep.agents.jax_ppo import ACTIVATIONS  # noqa: E402
+from sweep.agents.jax_ppo import ACTIVATIONS, toward_anchor  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
 from sweep.agents.rollout import Mlp  # noqa: E402
 from sweep.agents.sb3_offpolicy import GROUPS, TARGETS, SB3SAC, SB3TD3, target_of  # noqa: E402
@@ -144,7 +144,7 @@ class _JaxOffPolicy:
             parts = []
             if coupled and any(sub.values()):
                 parts.append(optax.add_decayed_weights(coupled, mask=sub) if anchor is None
-                             else _toward_anchor(coupled, sub, anchor))
+                             else toward_anchor(coupled, sub, anchor))
             parts.append(core.adam(1e-8 if name == "ent_coef" else eps))   # SB3 builds the ent_coef Adam with torch's eps
             tx[name] = optax.chain(*parts)
         old = getattr(self, "opt_states", None)
@@ -393,13 +393,6 @@ class JaxTD3(_JaxOffPolicy, SB3TD3):
 
 
 # ---- jitted helpers --------------------------------------------------------------------------------------------
-def _toward_anchor(coef: float, mask: dict[str, bool], anchor) -> optax.GradientTransformation:
-    """Coupled L2-Init: g <- g + coef * (theta - theta_0) on the masked parameters (before Adam's moments)."""
-    def update(grads, state, params):
-        return {k: grads[k] + coef * (params[k] - anchor[k]) if mask[k] else grads[k] for k in grads}, state
-    return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
-
-
 def _with_adam(state, adam: optax.ScaleByAdamState):
     """``state`` (an optax chain's) with its Adam part replaced by ``adam``."""
     if isinstance(state, optax.ScaleByAdamState):

@@ -161,11 +161,14 @@ def remedy_rng(seed: int) -> np.random.Generator:
 
 
 # ---- torch: SB3's policy with LayerNorm in the hidden layers -----------------------------------------------
-def _with_layer_norm(mlp: torch.nn.Sequential) -> torch.nn.Sequential:
+def with_layer_norm(mlp: torch.nn.Sequential, head: bool = False) -> torch.nn.Sequential:
+    """Linear -> LayerNorm -> activation for every hidden Linear; with ``head`` the last Linear is the output layer
+    (SAC/TD3's critics, TD3's actor) and is left alone (PPO's MLPs and SAC's ``latent_pi`` have no head inside)."""
+    last = max(i for i, m in enumerate(mlp) if isinstance(m, torch.nn.Linear))
     modules = []
-    for module in mlp:
+    for i, module in enumerate(mlp):
         modules.append(module)
-        if isinstance(module, torch.nn.Linear):
+        if isinstance(module, torch.nn.Linear) and not (head and i == last):
             modules.append(torch.nn.LayerNorm(module.out_features, eps=LAYER_NORM_EPS))
     return torch.nn.Sequential(*modules)
 
@@ -175,8 +178,8 @@ class LayerNormMlpExtractor(MlpExtractor):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.policy_net = _with_layer_norm(self.policy_net)
-        self.value_net = _with_layer_norm(self.value_net)
+        self.policy_net = with_layer_norm(self.policy_net)
+        self.value_net = with_layer_norm(self.value_net)
 
 
 class LayerNormActorCriticPolicy(ActorCriticPolicy):

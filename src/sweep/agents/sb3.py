@@ -143,8 +143,8 @@ class SB3PPO(StepwiseLearning, PPO):
         policy = self.policy
         with torch.no_grad():
             features = policy.extract_features(torch.as_tensor(obs, dtype=torch.float32), policy.pi_features_extractor)
-            return {"policy": _activations(policy.mlp_extractor.policy_net, features),
-                    "value": _activations(policy.mlp_extractor.value_net, features)}
+            return {"policy": hidden_of(policy.mlp_extractor.policy_net, features),
+                    "value": hidden_of(policy.mlp_extractor.value_net, features)}
 
     def loss_grad_norm(self, samples: Samples) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1, so no clipping), as SB3 computes it."""
@@ -180,12 +180,15 @@ class SB3PPO(StepwiseLearning, PPO):
             self.rng.bit_generator.state = state["rng"]
 
 
-def _activations(mlp: torch.nn.Sequential, x: torch.Tensor) -> list[Hidden]:
-    """(pre, post) of every activation module of an SB3 MLP (Linear[, LayerNorm], act, ...)."""
+def hidden_of(mlp: torch.nn.Sequential, x: torch.Tensor, head: bool = False) -> list[Hidden]:
+    """(pre, post) of every hidden activation module of an SB3 MLP (Linear[, LayerNorm], act, ...); with ``head``, its
+    last Linear (and a Tanh after it) are the output, not a hidden layer (SAC/TD3's critics, TD3's actor)."""
+    modules = list(mlp)
+    end = max(i for i, m in enumerate(modules) if isinstance(m, torch.nn.Linear)) if head else len(modules)
     out = []
-    for module in mlp:
+    for i, module in enumerate(modules):
         pre = x
         x = module(x)
-        if not isinstance(module, (torch.nn.Linear, torch.nn.LayerNorm)):
+        if i < end and not isinstance(module, (torch.nn.Linear, torch.nn.LayerNorm)):
             out.append(Hidden(pre.numpy(), x.numpy()))
     return out

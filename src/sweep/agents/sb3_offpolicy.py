@@ -32,9 +32,9 @@ from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
 from sweep.agents.learner import Hidden
-from sweep.agents.networks import LAYER_NORM_EPS, Network, adam_kwargs, remedy_rng
+from sweep.agents.networks import Network, adam_kwargs, remedy_rng, with_layer_norm
 from sweep.agents.offpolicy import RoundwiseLearning
-from sweep.agents.sb3 import ACTIVATIONS
+from sweep.agents.sb3 import ACTIVATIONS, hidden_of
 from sweep.plasticity.l2 import l2_copy, penalized
 from sweep.training.records import Samples
 
@@ -68,18 +68,6 @@ def off_policy_networks(algorithm: str, n_hidden: int, layer_norm: bool = False)
     return (actor, *critics)
 
 
-def _with_layer_norm(mlp: torch.nn.Sequential, head: bool) -> torch.nn.Sequential:
-    """Linear -> LayerNorm -> activation for every hidden Linear; with ``head`` the last Linear is the output layer
-    (TD3's actor, a critic) and is left alone (SAC's ``latent_pi`` has no head inside)."""
-    linears = [i for i, m in enumerate(mlp) if isinstance(m, torch.nn.Linear)]
-    out = []
-    for i, module in enumerate(mlp):
-        out.append(module)
-        if isinstance(module, torch.nn.Linear) and not (head and i == linears[-1]):
-            out.append(torch.nn.LayerNorm(module.out_features, eps=LAYER_NORM_EPS))
-    return torch.nn.Sequential(*out)
-
-
 def _normed_optimizer(policy, module: torch.nn.Module, lr_schedule) -> torch.optim.Optimizer:
     return policy.optimizer_class(module.parameters(), lr=lr_schedule(1), **policy.optimizer_kwargs)
 
@@ -91,7 +79,7 @@ class LayerNormSACPolicy(SACPolicy):
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
-        self.actor.latent_pi = _with_layer_norm(self.actor.latent_pi, head=False)
+        self.actor.latent_pi = with_layer_norm(self.actor.latent_pi, head=False)
         _norm_critics(self.critic, self.critic_target)
         self.actor.optimizer = _normed_optimizer(self, self.actor, lr_schedule)
         self.critic.optimizer = _normed_optimizer(self, self.critic, lr_schedule)
@@ -102,8 +90,8 @@ class LayerNormTD3Policy(TD3Policy):
 
     def _build(self, lr_schedule) -> None:
         super()._build(lr_schedule)
-        self.actor.mu = _with_layer_norm(self.actor.mu, head=True)
-        self.actor_target.mu = _with_layer_norm(self.actor_target.mu, head=True)
+        self.actor.mu = with_layer_norm(self.actor.mu, head=True)
+        self.actor_target.mu = with_layer_norm(self.actor_target.mu, head=True)
         self.actor_target.load_state_dict(self.actor.state_dict())
         _norm_critics(self.critic, self.critic_target)
         self.actor.optimizer = _normed_optimizer(self, self.actor, lr_schedule)
@@ -112,7 +100,7 @@ class LayerNormTD3Policy(TD3Policy):
 
 def _norm_critics(critic, target) -> None:
     for module in (critic, target):
-        module.q_networks = [_with_layer_norm(q, head=True) for q in module.q_networks]
+        module.q_networks = [with_layer_norm(q, head=True) for q in module.q_networks]
         for k, q in enumerate(module.q_networks):
             module.add_module(f"qf{k}", q)
     target.load_state_dict(critic.state_dict())
@@ -272,8 +260,8 @@ class _OffPolicyContract(RoundwiseLearning):
         actor_mlp = self.actor.latent_pi if self.algorithm == "sac" else self.actor.mu
         actions = torch.as_tensor(self.policy._predict(x, deterministic=True).numpy())
         xa = torch.cat([x, actions], dim=1)
-        return {"actor": _activations(actor_mlp, x, head=self.algorithm != "sac"),
-                **{f"critic_{k}": _activations(q, xa) for k, q in enumerate(self.critic.q_networks)}}
+        return {"actor": hidden_of(actor_mlp, x, head=self.algorithm != "sac"),
+                **{f"critic_{k}": hidden_of(q, xa, head=True) for k, q in enumerate(self.critic.q_networks)}}
 
     def loss_grad_norm(self, samples: Samples) -> float:
         """Norm of the critics' TD loss gradient on ``samples`` (SB3's loss: 0.5 x the sum of the critics' MSE for
@@ -315,19 +303,6 @@ class _OffPolicyContract(RoundwiseLearning):
             for group, kernel in zip(optimizer.param_groups, fused):
                 group["fused"] = kernel
         self.rng.bit_generator.state = state["rng"]
-
-
-def _activations(mlp: torch.nn.Sequential, x: torch.Tensor, head: bool = True) -> list[Hidden]:
-    """(pre, post) of every hidden activation of an SB3 MLP (Linear[, LayerNorm], act, ...; with ``head``, a last
-    Linear [and Tanh] that are the output)."""
-    out, modules = [], list(mlp)
-    end = max(i for i, m in enumerate(modules) if isinstance(m, torch.nn.Linear)) if head else len(modules)
-    for i, module in enumerate(modules):
-        pre = x
-        x = module(x)
-        if i < end and not isinstance(module, (torch.nn.Linear, torch.nn.LayerNorm)):
-            out.append(Hidden(pre.numpy(), x.numpy()))
-    return out
 
 
 def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps: float, seed: int,
