@@ -138,13 +138,17 @@ def test_l2_changes_the_update_only_through_the_decay():
 # The conditions the rollout flies (segments of 500 global steps = 125 vector steps of 4 vehicles, so a 300-step
 # rollout crosses two changes): the wind's speed; its direction alone (the same speed: the trap of an env that
 # rebuilt its wind on a speed change only) with the vehicle's mass and a rotor's efficiency changing on another clock;
-# Dryden gusts switched on at a change.
+# Dryden gusts switched on at a change; the observation options (rotor speeds, action history) with wide starts and
+# the start-box curriculum.
 CONDITIONS = {
     "speed": dict(wind=WindSchedule([3.0, 1.0], segment_steps=500)),
     "flip+vehicle": dict(wind=WindSchedule([3.0, 3.0], segment_steps=500, directions=[[1, 0, 0], [-1, 0, 0]]),
                          vehicle=VehicleSchedule([VehicleSegment(1.0), VehicleSegment(1.5),
                                                   VehicleSegment(1.0, (0.7, 1.0, 1.0, 1.0))], segment_steps=340)),
     "gusts": dict(wind=WindSchedule([3.0, 3.0], segment_steps=500, gusts=[0.0, 60.0])),
+    "observe+start": dict(wind=WindSchedule([3.0]), observe=dict(rotor_speeds=True, action_history=3),
+                          start=dict(tilt_deg=80.0, velocity=1.0, body_rate=1.0),
+                          curriculum=dict(start_bound_from=0.3, steps=600)),   # env.observe/start/curriculum
 }
 
 

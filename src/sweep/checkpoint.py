@@ -25,7 +25,8 @@ from typing import Any, Callable, Iterator
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from sweep.config import ConfigError, HookSettings, positive_int, remedy_blocks, runs, settings, unrun_remedy_settings
+from sweep.config import (ConfigError, HookSettings, drop_as_before, positive_int, remedy_blocks, runs, settings,
+                          unrun_remedy_settings)
 from sweep.status import read_json, update_json
 from sweep.training.hooks import Hook
 from sweep.training.loop import SNAPSHOT_FORMAT, Training
@@ -42,8 +43,10 @@ def job_key(cfg: DictConfig, uri: str) -> str:
     job does not run, or one added to the code since, does not enter it); its hooks in order with their resolved
     settings (a run with another hook list, or a hook set otherwise, is another job). Settings of a remedy the agent
     does not compose (``config.unrun_remedy_settings``) are not in it either: such jobs are the same job, and a
-    sweep that lists it twice runs it once (``JobRecord.hold``)."""
+    sweep that lists it twice runs it once (``JobRecord.hold``). A block added since whose setting means "as before"
+    (``config.ENV_AS_BEFORE``: the env's observe, start and curriculum switched off) stays out too."""
     container = settings(cfg)
+    drop_as_before(container.get("env", {}))
     agent = container.get("agent", {})
     remedies = remedy_blocks(agent)
     for name in [*remedies, *unrun_remedy_settings(agent)]:
@@ -51,6 +54,9 @@ def job_key(cfg: DictConfig, uri: str) -> str:
     agent.update(_running(remedies))
     hooks = _running(OmegaConf.to_container(cfg.get("hooks", OmegaConf.create({})), resolve=True))
     hooks.get("progress", {}).pop("every_s", None)
+    for spec in hooks.values():
+        if isinstance(spec.get("env_cfg"), dict):   # a hook given the env (the evaluation's)
+            drop_as_before(spec["env_cfg"])
     container["hooks"] = [[name, spec] for name, spec in hooks.items()]
     container.pop("resume", None)
     container.get("train", {}).pop("progress_every_s", None)

@@ -104,6 +104,26 @@ class ObservationScale:
 
 
 @dataclass
+class Observe:
+    rotor_speeds: bool = MISSING
+    action_history: int = at_least(0, unit=" (actions; 0: none)")
+
+
+@dataclass
+class Start:
+    tilt_deg: float = key(lambda v: _finite(v) and 0 <= v <= 180, "a number in [0, 180] (degrees)")
+    velocity: float = non_negative(" (m/s)")
+    body_rate: float = non_negative(" (rad/s)")
+
+
+@dataclass
+class Curriculum:
+    start_bound_from: Optional[float] = key(lambda v: v is None or (_finite(v) and v >= 0),
+                                            "a number >= 0 (m) or null (no curriculum)")
+    steps: int = positive_int(" (env steps)")
+
+
+@dataclass
 class Target:
     """A block built by hydra.utils.instantiate from its ``_target_``."""
     _target_: str = MISSING
@@ -127,6 +147,9 @@ class Env:
     motor_time_constant: float = positive(" (s)")
     observation: Observation = MISSING
     observation_scale: ObservationScale = field(default_factory=ObservationScale)
+    observe: Observe = field(default_factory=Observe)
+    start: Start = field(default_factory=Start)
+    curriculum: Curriculum = field(default_factory=Curriculum)
     reward_scale: float = positive()
     time_limit: TimeLimit = MISSING
     reward: Reward = field(default_factory=Reward)
@@ -343,6 +366,24 @@ ConfigStore.instance().store(name="sweep_schema", node=SweepConfig)
 # wiring, not a setting of the run (agent.learner and env.backend, the names, are). Left out of the logged MLflow
 # params; a job's resume key has the hooks' names and classes (sweep.checkpoint.job_key).
 WIRING = (("agent", "learners"), ("env", "backends"), (None, "hooks"))
+
+
+# Env blocks added after runs were archived, and when a block means "as before" (the job runs what it ran before the
+# block existed): such a block stays out of the job's resume key, so adding it moved no key (sweep.checkpoint.job_key).
+ENV_AS_BEFORE: dict[str, Callable[[dict], bool]] = {
+    "observe": lambda b: not b.get("rotor_speeds") and not b.get("action_history"),
+    "start": lambda b: not any(b.get(k) for k in ("tilt_deg", "velocity", "body_rate")),
+    "curriculum": lambda b: b.get("start_bound_from") is None,
+}
+
+
+def drop_as_before(env: dict) -> dict:
+    """Remove from a resolved ``env`` block (the run's, or a hook's copy of it) the ENV_AS_BEFORE blocks that mean
+    "as before"; returns it."""
+    for name, unchanged in ENV_AS_BEFORE.items():
+        if isinstance(env.get(name), dict) and unchanged(env[name]):
+            env.pop(name)
+    return env
 
 
 def settings(cfg: DictConfig) -> dict:

@@ -2,11 +2,20 @@
 
 * Episode: ``episode_seconds`` at ``sim_rate`` Hz (paper: 5 s at 100 Hz = 500 steps, counted in
   integer steps, so an episode never runs one step long).
-* Start: position uniform in +-``start_bound`` m per axis, at rest, level, rotors at hover speed.
+* Start: position uniform in +-``start_bound`` m per axis, at rest, level, rotors at hover speed (the paper's).
+  ``start`` widens it: ``tilt_deg`` (a rotation by an angle uniform in [0, tilt_deg] about a horizontal axis of
+  uniform direction), ``velocity`` (m/s) and ``body_rate`` (rad/s) (each component uniform in +-that). Each is drawn
+  only when non-zero, after the position, so the paper's starts keep their random numbers. ``curriculum``
+  (training only): the position box grows linearly from +-``start_bound_from`` at global step 0 to +-``start_bound``
+  at ``steps`` (``start_bound_at``); on the global clock, so a resumed run continues it.
 * Observation (13-D, RotorPy's layout): position, velocity, attitude quaternion (i, j, k, w), body
   rates; or, with ``observation="euler"``, 12-D with roll/pitch/yaw as in the paper's state list.
   ``observation_scale`` multiplies the velocity (m/s) and body-rate (rad/s) entries (default 1: RotorPy's
-  raw state); positions stay in metres.
+  raw state); positions stay in metres. ``observe`` appends (both off in the paper): ``rotor_speeds``, the 4 rotor
+  speeds the policy's commands reach through the motor lag, as the action that commands them (in [-1, 1],
+  ``rotor_speed_to_action``); ``action_history`` k, the last k actions the env applied (clipped), most recent first,
+  4 per action (at a start: the hover action, the command of the rotors' start speed). Layout: state | rotor speeds |
+  history.
 * ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
   (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
@@ -54,8 +63,10 @@ def action_to_rotor_speed(action, speed_min, speed_max):
     return speed_min + (action + 1.0) * 0.5 * (speed_max - speed_min)
 
 
+@numba.njit(cache=True, inline="always")
 def rotor_speed_to_action(speed, speed_min, speed_max):
-    """Rotor speed (rad/s) -> the action ``action_to_rotor_speed`` maps to it (its inverse)."""
+    """Rotor speed (rad/s) -> the action ``action_to_rotor_speed`` maps to it (its inverse); compiled for
+    ``task_outcome``, ``.py_func`` for NumPy arrays."""
     return 2.0 * (speed - speed_min) / (speed_max - speed_min) - 1.0
 
 
@@ -78,6 +89,19 @@ class Task(NamedTuple):
     velocity_scale: float     # observation_scale
     body_rate_scale: float
     reward: RewardWeights
+    rotor_speeds: bool        # observe.rotor_speeds
+    speed_min: float          # rad/s: the action -1 ...
+    speed_max: float          # ... and +1
+
+
+def state_dim(observation: str) -> int:
+    """Columns of the vehicle's state in the observation: 13 (quaternion) or 12 (euler)."""
+    return 12 if observation == "euler" else 13
+
+
+def observation_dim(observation: str, rotor_speeds: bool, action_history: int) -> int:
+    """Columns of the observation: the state, then the 4 rotor speeds, then the last ``action_history`` actions."""
+    return state_dim(observation) + 4 * int(rotor_speeds) + 4 * int(action_history)
 
 
 class Outcome(NamedTuple):
@@ -99,6 +123,7 @@ class HoverKernel(NamedTuple):
     reward_scale: float    # the learner gets the reward times this
     outcome: Outcome
     gust_filters: GustFilters  # the vehicles' gust processes (at rest and unused when the wind has no gusts)
+    history: np.ndarray        # (N, k, 4) float32: the last k actions, most recent first (k = observe.action_history)
 
 
 class RolloutWind(NamedTuple):
@@ -110,9 +135,10 @@ class RolloutWind(NamedTuple):
 
 
 @numba.njit(cache=True)
-def task_outcome(vehicles, actions, t_idx, task, obs, outcome):
-    """After the physics step: advance each episode clock ``t_idx``, write the observation ``obs`` and the
-    ``outcome`` (reward, crashed = left the bounds, terminated, truncated) of every vehicle (in place)."""
+def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history):
+    """After the physics step: advance each episode clock ``t_idx``, push ``actions`` into the action ``history``,
+    write the observation ``obs`` and the ``outcome`` (reward, crashed = left the bounds, terminated, truncated) of
+    every vehicle (in place)."""
     x, v, q, w = vehicles.x, vehicles.v, vehicles.q, vehicles.w
     rewards, crashed, terminated, truncated = outcome
     world_bound, terminate_at_limit, v_scale, w_scale = (task.world_bound, task.terminate_at_limit,
@@ -140,6 +166,20 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome):
                 obs[i, 6 + a] = q[i, a]
             for a in range(3):
                 obs[i, 10 + a] = w[i, a] * w_scale
+        col = 12 if euler else 13
+        if task.rotor_speeds:
+            for r in range(4):
+                obs[i, col + r] = rotor_speed_to_action(vehicles.rotor_speeds[i, r], task.speed_min, task.speed_max)
+            col += 4
+        k = history.shape[1]
+        for j in range(k - 1, 0, -1):
+            for a in range(4):
+                history[i, j, a] = history[i, j - 1, a]
+        for j in range(k):
+            for a in range(4):
+                if j == 0:
+                    history[i, 0, a] = actions[i, a]
+                obs[i, col + 4 * j + a] = history[i, j, a]
 
 
 def segment_count(wind: WindSchedule, vehicle: VehicleSchedule, global_step: int) -> int:
@@ -180,8 +220,13 @@ class HoverVecEnv(VecEnv):
         time_limit: str = "truncate",
         observation_scale: dict | None = None,
         reward_scale: float = 1.0,
+        observe: dict | None = None,
+        start: dict | None = None,
+        curriculum: dict | None = None,
         seed: int | None = None,
     ) -> None:
+        """``observe``: {rotor_speeds: bool, action_history: k}; ``start``: {tilt_deg, velocity, body_rate};
+        ``curriculum``: {start_bound_from: m or None, steps} (None: the paper's, each; see the module docstring)."""
         self.time_limit = time_limit
         scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
         self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])
@@ -200,7 +245,15 @@ class HoverVecEnv(VecEnv):
         self.speed_min = float(self.params["rotor_speed_min"])
         self.speed_max = float(self.params["rotor_speed_max"])
 
-        obs_dim = 13 if observation == "quaternion" else 12
+        observe = {"rotor_speeds": False, "action_history": 0, **(observe or {})}
+        self.observe_rotor_speeds, self.action_history = bool(observe["rotor_speeds"]), int(observe["action_history"])
+        start = {"tilt_deg": 0.0, "velocity": 0.0, "body_rate": 0.0, **(start or {})}
+        self.start_tilt = math.radians(float(start["tilt_deg"]))
+        self.start_velocity, self.start_body_rate = float(start["velocity"]), float(start["body_rate"])
+        curriculum = {"start_bound_from": None, "steps": 1, **(curriculum or {})}
+        self.start_bound_from = curriculum["start_bound_from"]
+        self.curriculum_steps = int(curriculum["steps"])
+        obs_dim = observation_dim(observation, self.observe_rotor_speeds, self.action_history)
         observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.render_mode = None
@@ -220,6 +273,8 @@ class HoverVecEnv(VecEnv):
             GustFilters(state=np.zeros((n_envs, 3, 4)), coef=np.zeros((3, 6)))
         self._gust_rng = gust_rng(seed)
         self._settle_gusts()
+        self.hover_action = float(rotor_speed_to_action(self.hover_speed, self.speed_min, self.speed_max))
+        self.history = np.full((n_envs, self.action_history, 4), self.hover_action, dtype=np.float32)
         # outputs of task_outcome, reused every step
         self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
         self._rewards = np.zeros(n_envs, dtype=np.float32)
@@ -231,7 +286,8 @@ class HoverVecEnv(VecEnv):
         self._task = Task(episode_steps=self.episode_steps, world_bound=self.world_bound,
                           terminate_at_limit=time_limit == "terminate", euler=observation == "euler",
                           velocity_scale=self.velocity_scale, body_rate_scale=self.body_rate_scale,
-                          reward=self.reward_fn.weights)
+                          reward=self.reward_fn.weights, rotor_speeds=self.observe_rotor_speeds,
+                          speed_min=self.speed_min, speed_max=self.speed_max)
 
     @property
     def kernel(self) -> HoverKernel:
@@ -242,7 +298,7 @@ class HoverVecEnv(VecEnv):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
         return HoverKernel(vehicles=s.vehicles, physics=s.physics, task=self._task, t_idx=self.t_idx,
                            ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome,
-                           gust_filters=self._gust_filters)
+                           gust_filters=self._gust_filters, history=self.history)
 
     # ---- task pieces -------------------------------------------------------------------------
     def sync_condition(self) -> None:
@@ -284,15 +340,34 @@ class HoverVecEnv(VecEnv):
             return None
         return -(-(next_boundary(self.global_step, self.vehicle.segment_steps) - self.global_step) // self.num_envs)
 
+    def start_bound_at(self, global_step: int) -> float:
+        """The start box's half-width (m) at ``global_step``: ``start_bound``, or under the curriculum the linear
+        ramp from ``start_bound_from`` at 0 to ``start_bound`` at ``curriculum_steps``."""
+        if self.start_bound_from is None:
+            return self.start_bound
+        done = min(1.0, global_step / self.curriculum_steps)
+        return float(self.start_bound_from) + done * (self.start_bound - float(self.start_bound_from))
+
     def _reset_envs(self, idx: np.ndarray) -> None:
         k = len(idx)
         if k == 0:
             return
-        self.sim.x[idx] = self._rng.uniform(-self.start_bound, self.start_bound, size=(k, 3))
+        bound = self.start_bound_at(self.global_step)
+        self.sim.x[idx] = self._rng.uniform(-bound, bound, size=(k, 3))
         self.sim.v[idx] = 0.0
         self.sim.q[idx] = (0.0, 0.0, 0.0, 1.0)
         self.sim.w[idx] = 0.0
+        if self.start_tilt > 0:   # about a horizontal axis (cos phi, sin phi, 0) by an angle in [0, tilt]
+            phi = self._rng.uniform(0.0, 2.0 * np.pi, size=k)
+            half = 0.5 * self._rng.uniform(0.0, self.start_tilt, size=k)
+            self.sim.q[idx] = np.stack([np.cos(phi) * np.sin(half), np.sin(phi) * np.sin(half), np.zeros(k),
+                                        np.cos(half)], axis=1)
+        if self.start_velocity > 0:
+            self.sim.v[idx] = self._rng.uniform(-self.start_velocity, self.start_velocity, size=(k, 3))
+        if self.start_body_rate > 0:
+            self.sim.w[idx] = self._rng.uniform(-self.start_body_rate, self.start_body_rate, size=(k, 3))
         self.sim.rotor_speeds[idx] = self.hover_speed
+        self.history[idx] = self.hover_action
         self.t_idx[idx] = 0
         self.ep_return[idx] = 0.0
         self.ep_start_time[idx] = time.time()
@@ -306,8 +381,11 @@ class HoverVecEnv(VecEnv):
             att = np.zeros((self.num_envs, 3))
             for i in range(self.num_envs):
                 quat_to_euler_xyz(s.q[i], att[i])
-        return np.concatenate([s.x, s.v * self.velocity_scale, att, s.w * self.body_rate_scale],
-                              axis=1).astype(np.float32)
+        columns = [s.x, s.v * self.velocity_scale, att, s.w * self.body_rate_scale]
+        if self.observe_rotor_speeds:
+            columns.append(rotor_speed_to_action(s.rotor_speeds, self.speed_min, self.speed_max))
+        columns.append(self.history.reshape(self.num_envs, -1))
+        return np.concatenate(columns, axis=1).astype(np.float32)
 
     def condition(self) -> Condition:
         """The condition in force at the current global step (``Condition``: its segment, wind and vehicle)."""
@@ -318,7 +396,8 @@ class HoverVecEnv(VecEnv):
         """Everything needed to continue exactly where this env is (vehicles, clocks, RNG)."""
         return {"sim": self.sim.get_state(), "global_step": self.global_step, "t_idx": self.t_idx.copy(),
                 "ep_return": self.ep_return.copy(), "rng": self._rng.bit_generator.state,
-                "gusts": self._gust_filters.state.copy(), "gust_rng": self._gust_rng.bit_generator.state}
+                "gusts": self._gust_filters.state.copy(), "gust_rng": self._gust_rng.bit_generator.state,
+                "history": self.history.copy()}
 
     def set_state(self, state: dict[str, Any]) -> None:
         self.sim.set_state(state["sim"])
@@ -329,6 +408,8 @@ class HoverVecEnv(VecEnv):
         if "gusts" in state:  # checkpoints before the gusts have none (their winds had none)
             self._gust_filters.state[...] = state["gusts"]
             self._gust_rng.bit_generator.state = state["gust_rng"]
+        if "history" in state:  # checkpoints before the action history have none (they observed none)
+            self.history[...] = state["history"]
         self._segments = None
         self.sim.set_vehicle(NOMINAL)
         self.sync_condition()
@@ -352,7 +433,7 @@ class HoverVecEnv(VecEnv):
             add_gusts(self._gust_filters, self._gust_draws(1)[0], self._gust_sigma, wind)
         self.sim.step(cmd, wind)
         self.global_step += self.num_envs
-        task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome)
+        task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome, self.history)
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()
         self.ep_return += rewards
         dones = self._terminated | self._truncated
