@@ -38,12 +38,17 @@ WEIGHT_ATOL = {None: 1e-5, "coupled": 1e-5, "decoupled": 5e-5}
 STAT_RTOL = 5e-6  # loss terms; pg loss and approx KL (near 0 by construction) are compared to 1e-6 absolute
 
 
-def pair(overrides=(), n_envs=8, n_steps=256, seed=0, total_timesteps=None):
+# an asymmetric actor-critic: the actor reads the state and 2 past actions, the critic also the rotor speeds and the
+# condition (env.observe.critic_*)
+ASYMMETRIC = dict(observe=dict(action_history=2, critic_rotor_speeds=True, critic_condition=True))
+
+
+def pair(overrides=(), n_envs=8, n_steps=256, seed=0, total_timesteps=None, env_kwargs=None):
     """(sb3, jax) learners of the same config and seed, each on its own env with the same seed."""
     models = []
     for learner in ("sb3", "jax"):
         cfg = compose_cfg([f"agent.learner={learner}", f"agent.ppo.n_steps={n_steps}", *overrides])
-        env = HoverVecEnv(n_envs=n_envs, seed=seed, wind=WindSchedule([3.0]))
+        env = HoverVecEnv(n_envs=n_envs, seed=seed, wind=WindSchedule([3.0]), **(env_kwargs or {}))
         model = build_learner(cfg.agent, env, seed, total_timesteps)
         for remedy in remedy_hooks(cfg.agent):
             remedy.setup(model, None)
@@ -63,11 +68,15 @@ def sb3_rollout_into_both(sb3, *jax_models) -> None:
         model.rollout_buffer.full = True
 
 
-def test_initial_weights_are_sb3s_for_the_same_seed():
-    sb3, jx = pair(seed=7)
+@pytest.mark.parametrize("env_kwargs", [None, ASYMMETRIC], ids=["symmetric", "asymmetric"])
+def test_initial_weights_are_sb3s_for_the_same_seed(env_kwargs):
+    sb3, jx = pair(seed=7, env_kwargs=env_kwargs)
     a, b = sb3.parameter_arrays(), jx.parameter_arrays()
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
     assert not np.array_equal(a["action_net.weight"], pair(seed=8)[1].parameter_arrays()["action_net.weight"])
+    if env_kwargs:
+        assert a["mlp_extractor.policy_net.0.weight"].shape == (64, 13 + 8)
+        assert a["mlp_extractor.value_net.0.weight"].shape == (64, 13 + 8 + 4 + 8)
 
 
 def test_minibatch_loss_terms_and_gradients_match_sb3():
@@ -96,17 +105,18 @@ def test_minibatch_loss_terms_and_gradients_match_sb3():
         np.testing.assert_allclose(np.asarray(grads[key]), g, rtol=1e-4, atol=1e-5 * np.abs(g).max(), err_msg=key)
 
 
-@pytest.mark.parametrize("l2", [None, "coupled", "decoupled"])
-def test_one_update_matches_sb3_weights_and_logged_stats(l2):
+@pytest.mark.parametrize("l2,env_kwargs", [(None, None), ("coupled", None), ("decoupled", None), (None, ASYMMETRIC)],
+                         ids=["plain", "coupled", "decoupled", "asymmetric"])
+def test_one_update_matches_sb3_weights_and_logged_stats(l2, env_kwargs):
     overrides = [] if l2 is None else ["agent=l2", f"agent.l2.mode={l2}", "agent.l2.coef=1e-2"]
-    sb3, jx = pair(overrides)
+    sb3, jx = pair(overrides, env_kwargs=env_kwargs)
     sb3_rollout_into_both(sb3, jx)
     for model in (sb3, jx):
         model.set_logger(configure_logger(0, None, "", False))
         np.random.seed(123)  # the same minibatch order: both draw np.random.permutation per epoch
         model.train()
     a, b = sb3.parameter_arrays(), jx.parameter_arrays()
-    moved = max(np.abs(a[k] - pair(overrides)[0].parameter_arrays()[k]).max() for k in a)
+    moved = max(np.abs(a[k] - pair(overrides, env_kwargs=env_kwargs)[0].parameter_arrays()[k]).max() for k in a)
     assert moved > 1e-3  # the update did something
     for key in a:
         np.testing.assert_allclose(b[key], a[key], rtol=0, atol=WEIGHT_ATOL[l2], err_msg=key)
@@ -149,6 +159,9 @@ CONDITIONS = {
     "observe+start": dict(wind=WindSchedule([3.0]), observe=dict(rotor_speeds=True, action_history=3),
                           start=dict(tilt_deg=80.0, velocity=1.0, body_rate=1.0),
                           curriculum=dict(start_bound_from=0.3, steps=600)),   # env.observe/start/curriculum
+    "asymmetric": dict(wind=WindSchedule([3.0, 1.0], segment_steps=500, gusts=[20.0, 0.0]),
+                       vehicle=VehicleSchedule([VehicleSegment(1.0), VehicleSegment(1.3, (0.8, 1.0, 1.0, 1.0))],
+                                               segment_steps=340), **ASYMMETRIC),   # the critic's condition changes
 }
 
 

@@ -61,11 +61,11 @@ class Spaces(gym.Env):
         return np.zeros(OBS, np.float32), 0.0, False, False, {}
 
 
-def sb3_model(cls, seed=0, net_arch=(32, 32), **kwargs):
+def sb3_model(cls, seed=0, net_arch=(32, 32), policy="MlpPolicy", **kwargs):
     """An SB3 model whose buffer holds 300 random transitions (terminations, some of them time-outs), with its target
     networks moved away from the online ones."""
     kwargs.setdefault("policy_kwargs", {"net_arch": list(net_arch)})
-    model = cls("MlpPolicy", Spaces(), learning_rate=1e-3, buffer_size=1000, batch_size=B, seed=seed, device="cpu",
+    model = cls(policy, Spaces(), learning_rate=1e-3, buffer_size=1000, batch_size=B, seed=seed, device="cpu",
                 **kwargs)
     model.set_logger(Logger(folder=None, output_formats=[]))
     rng = np.random.default_rng(seed)
@@ -226,6 +226,22 @@ def test_td3_update_equals_sb3(activation):
                     activation=activation)
     _, _, stats = run_both("td3", model, 2, 5, jo.td3_update, **settings)
     assert np.asarray(stats["actor_updated"]).tolist() == [True, False, True, False, True]
+
+
+@pytest.mark.parametrize("algorithm", ["sac", "td3"])
+def test_an_asymmetric_actor_critic_update_equals_sb3(algorithm):
+    """The actor reads the leading columns of the observation, the critics all of them (env.observe.critic_*): SB3's
+    Asymmetric*Policy and the compiled update, which reads the columns a network's first layer takes."""
+    from sweep.agents.sb3_offpolicy import AsymmetricSACPolicy, AsymmetricTD3Policy
+    cls, policy = (SAC, AsymmetricSACPolicy) if algorithm == "sac" else (TD3, AsymmetricTD3Policy)
+    model = sb3_model(cls, tau=0.05, policy=policy, policy_kwargs={"net_arch": [32, 32], "actor_columns": OBS - 3})
+    first = model.actor.latent_pi[0] if algorithm == "sac" else model.actor.mu[0]
+    assert first.in_features == OBS - 3
+    assert model.critic.qf0[0].in_features == OBS + ACT
+    update = jo.sac_update if algorithm == "sac" else jo.td3_update
+    settings = dict(tau=0.05, gamma=0.99, target_update_interval=1, ent_coef=None) if algorithm == "sac" else \
+        dict(tau=0.05, gamma=0.99, policy_delay=2, target_policy_noise=0.2, target_noise_clip=0.5)
+    run_both(algorithm, model, 2, 4, update, **settings)
 
 
 def float64_check() -> dict[str, float]:

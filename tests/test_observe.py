@@ -40,6 +40,26 @@ def test_the_observation_is_the_state_then_rotor_speeds_then_the_last_actions_mo
     assert euler.reset().shape == (1, 12 + 8)
 
 
+def test_the_critics_columns_come_last_and_follow_the_condition():
+    from sweep.envs.vehicle import VehicleSchedule, VehicleSegment
+    env = HoverVecEnv(n_envs=2, seed=1, observe=dict(action_history=1, critic_rotor_speeds=True, critic_condition=True),
+                      wind=WindSchedule([3.0, 1.0], segment_steps=20, direction=[0.0, 1.0, 0.0]),
+                      vehicle=VehicleSchedule([VehicleSegment(1.0), VehicleSegment(1.5, (0.7, 1.0, 1.0, 1.0))],
+                                              segment_steps=30))
+    assert env.observation_space.shape == (13 + 4 + 4 + 8,) and env.actor_columns == 17
+    obs = env.reset()
+    np.testing.assert_array_equal(obs[:, 21:], np.float32([[0, 3, 0, 1, 1, 1, 1, 1]] * 2))
+    rows = []
+    for _ in range(20):   # 40 global steps: the wind changes at 20, the vehicle at 30
+        obs, _, _, _ = env.step(np.full((2, 4), 0.43, np.float32))
+        np.testing.assert_array_equal(obs[:, 17:21], rotor_speed_to_action(env.sim.rotor_speeds, env.speed_min,
+                                                                            env.speed_max).astype(np.float32))
+        rows.append(obs[0, 21:])
+    assert rows[0].tolist() == [0, 3, 0, 1, 1, 1, 1, 1]          # the condition the step flew in
+    assert rows[10].tolist() == [0, 1, 0, 1, 1, 1, 1, 1]          # global steps 20-21: the second wind
+    assert rows[15].tolist() == pytest.approx([0, 1, 0, 1.5, 0.7, 1, 1, 1])   # 30-31: the second vehicle
+
+
 def test_the_paper_start_keeps_its_draws_and_the_wider_start_stays_in_its_bounds():
     paper, wide = HoverVecEnv(n_envs=64, seed=4), HoverVecEnv(n_envs=64, seed=4, start=START)
     paper.reset(), wide.reset()
@@ -89,8 +109,8 @@ def test_a_restored_env_continues_the_action_history_and_the_curriculum():
         np.testing.assert_array_equal(d1, d2)
 
 
-@pytest.mark.parametrize("algorithm", ["sac", "td3"])
-def test_the_compiled_off_policy_collect_is_the_env_stepped_with_its_actions(algorithm):
+@pytest.mark.parametrize("algorithm,critic", [("sac", False), ("td3", False), ("td3", True)])
+def test_the_compiled_off_policy_collect_is_the_env_stepped_with_its_actions(algorithm, critic):
     """The JAX SAC/TD3 collect (numba) writes the transitions ``HoverVecEnv.step`` gives for the same actions: with the
     rotor speeds and the action history observed, wide starts and the curriculum, across crashes and time limits."""
     overrides = [f"agent={algorithm}", "agent.learner=jax", "agent.policy.net_arch=[16,16]",
@@ -98,6 +118,10 @@ def test_the_compiled_off_policy_collect_is_the_env_stepped_with_its_actions(alg
                  f"agent.{algorithm}.round_steps=256", "env.episode_seconds=0.6", "env.n_envs=2",
                  "env.observe.rotor_speeds=true", "env.observe.action_history=3", "env.start.tilt_deg=80",
                  "env.start.velocity=1", "env.curriculum.start_bound_from=0.5", "env.curriculum.steps=600"]
+    if critic:   # an asymmetric actor-critic under a wind and a vehicle that change
+        overrides = [o for o in overrides if "rotor_speeds" not in o] + [
+            "env.observe.critic_rotor_speeds=true", "env.observe.critic_condition=true", "wind=paper",
+            "wind.segment_steps=300", "vehicle=payload", "vehicle.segment_steps=400"]
     cfg = compose_cfg(overrides)
     validate(cfg)
 
@@ -143,7 +167,49 @@ def test_every_learner_reads_the_wider_observation(agent, learner):
     assert model.predict(env.reset(), deterministic=True)[0].shape == (1, 4)
 
 
+@pytest.mark.parametrize("layer_norm", [False, True])
+@pytest.mark.parametrize("agent,learner", [(a, i) for a in ("ppo", "sac", "td3") for i in ("sb3", "jax")])
+def test_an_asymmetric_actor_reads_its_columns_the_critic_all_and_the_saved_zip_is_sb3s(agent, learner, layer_norm,
+                                                                                       tmp_path):
+    """env.observe.critic_*: the actor's first layer takes the leading actor_columns, the critics' all; the diagnostics
+    and the probe run; the saved model loads with SB3's own class and acts the same."""
+    from stable_baselines3 import PPO, SAC, TD3
+    from sweep.plasticity.probe import probe_fit
+    steps = ["agent.ppo.n_steps=128", "agent.ppo.batch_size=64"] if agent == "ppo" else \
+        [f"agent.{agent}.learning_starts=64", f"agent.{agent}.batch_size=32", f"agent.{agent}.round_steps=128"]
+    cfg = compose_cfg([f"agent={agent}", f"agent.learner={learner}", "agent.policy.net_arch=[8,8]", *steps,
+                       f"agent.policy.layer_norm={layer_norm}", "env.observe.action_history=2",
+                       "env.observe.critic_rotor_speeds=true", "env.observe.critic_condition=true"])
+    validate(cfg)
+    env = make_env(cfg.env, 1, wind_schedule(cfg.wind), 0, learning=True)
+    model = build_learner(cfg.agent, env, 0, 1000)
+    model.set_logger(configure_logger(0, None, "", False))
+    total = model.begin(256)
+    while model.num_timesteps < total:
+        model.collect()
+        model.update()
+    actor, critic = 13 + 8, 13 + 8 + 4 + 8
+    arrays = model.parameter_arrays()
+    first = {net.name: arrays[f"{net.hidden[0]}.weight"].shape[1] for net in model.networks}
+    assert first == ({"policy": actor, "value": critic} if agent == "ppo" else
+                     {"actor": actor, "critic_0": critic + 4, "critic_1": critic + 4})
+    obs = np.random.default_rng(0).normal(size=(64, critic)).astype(np.float32)
+    hidden = model.hidden_activations(obs)
+    assert all(h.pre.shape == (64, 8) for layers in hidden.values() for h in layers)
+    assert np.isfinite(probe_fit(model, obs, steps=5, batch_size=16)).all()
+    model.save(tmp_path / "model.zip")
+    loaded = {"ppo": PPO, "sac": SAC, "td3": TD3}[agent].load(tmp_path / "model.zip", device="cpu")
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0],
+                               atol=1e-5)
+    changed = obs.copy()
+    changed[:, actor:] += 5.0   # what only the critic sees does not move the actor
+    np.testing.assert_array_equal(model.predict(changed, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+
+
 @pytest.mark.parametrize("override,message", [
+    ("env.observe.critic_rotor_speeds=true,env.observe.rotor_speeds=true",
+     "env.observe.critic_rotor_speeds=true: must be false with env.observe.rotor_speeds=true"),
+    ("env.curriculum.start_bound_from=3", "env.curriculum.start_bound_from=3: must be <= env.start_bound=2"),
     ("env.observe.action_history=-1", "env.observe.action_history=-1: must be an integer >= 0"),
     ("env.observe.rotor_speeds=maybe", "env.observe.rotor_speeds"),
     ("env.start.tilt_deg=200", "env.start.tilt_deg=200: must be a number in [0, 180] (degrees)"),
@@ -153,7 +219,7 @@ def test_every_learner_reads_the_wider_observation(agent, learner):
 ])
 def test_a_bad_option_is_one_line(override, message):
     with pytest.raises((ConfigError, Exception)) as err:
-        validate(compose_cfg([override]))
+        validate(compose_cfg(override.split(",")))
     assert message in one_line(err.value) and "\n" not in one_line(err.value)
 
 
@@ -161,6 +227,7 @@ def test_the_options_enter_the_job_key_only_when_on():
     key = lambda *o: job_key(compose_cfg(list(o)), "sqlite:///x.db")  # noqa: E731
     base = key()
     assert key("env.curriculum.steps=5") == base == key("env.start.tilt_deg=0", "env.observe.action_history=0")
-    on = ["env.observe.rotor_speeds=true", "env.observe.action_history=8", "env.start.tilt_deg=30",
+    on = ["env.observe.rotor_speeds=true", "env.observe.action_history=8", "env.observe.critic_rotor_speeds=true",
+          "env.observe.critic_condition=true", "env.start.tilt_deg=30",
           "env.start.velocity=0.5", "env.curriculum.start_bound_from=0.2"]
     assert len({base, *(key(o) for o in on)}) == len(on) + 1

@@ -773,9 +773,11 @@ def test_summary_and_brief_show_final_and_best_evaluation(policy_report):
     assert "best = the policy kept during training at its highest mean training episode reward" in note
     # the terminal's table: final and best evaluation success
     brief = (out / "brief.txt").read_text().splitlines()
-    assert brief[0].split()[:9] == ["Agent", "Wind", "Seeds", "Eval", "success", "final", "(%)", "Eval", "success"]
-    assert "Eval success best (%)" in brief[0] and "Eval crash final (%)" in brief[0]
-    rows = {line.split("  ")[0].strip(): line.split() for line in brief[2:]}
+    assert brief[0].split()[:7] == ["Agent", "Wind", "Seeds", "Success:", "final", "policy", "(%)"]
+    assert "Success: best-train-reward policy (%)" in brief[0] and "Crash: final (%)" in brief[0]
+    assert brief[-1].startswith("final policy = the policy at the end of training; best-train-reward policy = the one "
+                                "kept at its highest mean training episode reward")   # the printed table says which best
+    rows = {line.split("  ")[0].strip(): line.split() for line in brief[2:-2]}
     assert rows["PPO"][2:6] == ["3", "50", "65", "(n=2)"]
     assert rows["L2 + PPO"][4:8] == ["2", "20", "–", "50"]
     assert rows["RECOM + L2 PPO"][6:8] == ["–", "80"]

@@ -107,6 +107,8 @@ class ObservationScale:
 class Observe:
     rotor_speeds: bool = MISSING
     action_history: int = at_least(0, unit=" (actions; 0: none)")
+    critic_rotor_speeds: bool = MISSING
+    critic_condition: bool = MISSING
 
 
 @dataclass
@@ -371,7 +373,8 @@ WIRING = (("agent", "learners"), ("env", "backends"), (None, "hooks"))
 # Env blocks added after runs were archived, and when a block means "as before" (the job runs what it ran before the
 # block existed): such a block stays out of the job's resume key, so adding it moved no key (sweep.checkpoint.job_key).
 ENV_AS_BEFORE: dict[str, Callable[[dict], bool]] = {
-    "observe": lambda b: not b.get("rotor_speeds") and not b.get("action_history"),
+    "observe": lambda b: not any(b.get(k) for k in ("rotor_speeds", "action_history", "critic_rotor_speeds",
+                                                     "critic_condition")),
     "start": lambda b: not any(b.get(k) for k in ("tilt_deg", "velocity", "body_rate")),
     "curriculum": lambda b: b.get("start_bound_from") is None,
 }
@@ -698,6 +701,12 @@ def _cross_rules(c: DictConfig) -> None:
         raise ConfigError(f"env.sim_rate={c.env.sim_rate:g} with Dryden gusts: must be >= 20 Hz (RotorPy's filter "
                           "sub-steps above 0.05 s, which is not reproduced)")
     _vehicle_rules(c)
+    if c.env.observe.rotor_speeds and c.env.observe.critic_rotor_speeds:
+        raise ConfigError("env.observe.critic_rotor_speeds=true: must be false with env.observe.rotor_speeds=true (the "
+                          "actor, and so the critic, already observes them)")
+    if c.env.curriculum.start_bound_from is not None and c.env.curriculum.start_bound_from > c.env.start_bound:
+        raise ConfigError(f"env.curriculum.start_bound_from={c.env.curriculum.start_bound_from:g}: must be <= "
+                          f"env.start_bound={c.env.start_bound:g} (the curriculum widens the start box to it)")
     if c.env.backend not in c.env.backends:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:

@@ -41,7 +41,8 @@ class FixedPolicy:
 
 def to_action(env: HoverVecEnv, rotor_speeds) -> np.ndarray:
     """Rotor speeds (rad/s) -> actions in [-1, 1] (the inverse of the env's linear mapping)."""
-    return rotor_speed_to_action(np.asarray(rotor_speeds), env.speed_min, env.speed_max).astype(np.float32)
+    return np.asarray(rotor_speed_to_action(np.asarray(rotor_speeds, np.float64), env.speed_min, env.speed_max),
+                      dtype=np.float32)
 
 
 def constant(speed):

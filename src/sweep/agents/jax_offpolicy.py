@@ -73,8 +73,10 @@ def linear(params: Params, name: str, x: jax.Array) -> jax.Array:
 
 def mlp(params: Params, prefix: str, x: jax.Array, act: Callable, head: bool = True):
     """(output, [(pre, post) per hidden layer]) of SB3's ``create_mlp`` Sequential ``prefix``: Linear [-> LayerNorm]
-    -> ``act`` per hidden layer, then (``head``) a Linear without activation."""
+    -> ``act`` per hidden layer, then (``head``) a Linear without activation. A first layer that takes fewer inputs than
+    ``x`` has columns reads the leading ones (an asymmetric actor)."""
     modules = sequential(params, prefix)
+    x = x[..., :params[f"{modules[0][0]}.weight"].shape[1]]
     hidden = []
     for k, (lin, norm) in enumerate(modules):
         x = linear(params, lin, x)

@@ -64,7 +64,7 @@ from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 
 from sweep.agents import rollout  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
-from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_critic, adam_kwargs, policy_class,  # noqa: E402
+from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_columns, actor_critic, adam_kwargs, policy_class,  # noqa: E402
                                   remedy_rng)
 from sweep.agents.onpolicy import StepwiseLearning  # noqa: E402
 from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
@@ -110,7 +110,9 @@ def layer_norm(x: jax.Array, scale: jax.Array, shift: jax.Array) -> jax.Array:
 
 
 def mlp_forward(params: Params, net: Network, x: jax.Array, act) -> tuple[jax.Array, list[tuple[jax.Array, jax.Array]]]:
-    """(output, [(pre, post) per hidden layer]) of an SB3 MLP + head: Linear (x W^T + b) [-> LayerNorm] -> ``act``."""
+    """(output, [(pre, post) per hidden layer]) of an SB3 MLP + head: Linear (x W^T + b) [-> LayerNorm] -> ``act``.
+    A network whose first layer takes fewer inputs than ``x`` has columns reads the leading ones (an asymmetric actor)."""
+    x = x[..., :params[f"{net.hidden[0] if net.hidden else net.head}.weight"].shape[1]]
     hidden = []
     for name, norm in zip(net.hidden, net.norms):
         pre = x @ params[f"{name}.weight"].T + params[f"{name}.bias"]
@@ -190,11 +192,17 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
     # ---- construction ---------------------------------------------------------------------------
     def torch_policy(self) -> ActorCriticPolicy:
         """An SB3 ``ActorCriticPolicy`` of this architecture (its parameters are SB3's initial draw)."""
-        arch = list(self.net_arch)
-        cls = policy_class(self.layer_norm)
+        cls = policy_class(self.layer_norm, "actor_columns" in self._policy_kwargs())
         cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
-        return cls(self.observation_space, self.action_space, self.lr_schedule, net_arch={"pi": arch, "vf": arch},
-                   activation_fn=SB3_ACTIVATIONS[self.activation], optimizer_kwargs=adam_kwargs(self.adam_eps))
+        return cls(self.observation_space, self.action_space, self.lr_schedule, **self._policy_kwargs())
+
+    def _policy_kwargs(self) -> dict[str, Any]:
+        """SB3's ``policy_kwargs`` of this architecture (with ``actor_columns`` for an asymmetric actor-critic)."""
+        arch = list(self.net_arch)
+        kwargs = {"net_arch": {"pi": arch, "vf": arch}, "activation_fn": SB3_ACTIVATIONS[self.activation],
+                  "optimizer_kwargs": adam_kwargs(self.adam_eps)}
+        columns = actor_columns(self.env)
+        return kwargs if columns is None else {**kwargs, "actor_columns": columns}
 
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
@@ -432,14 +440,12 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
 
     def to_sb3(self) -> PPO:
         """An SB3 ``PPO`` with this learner's weights (``PPO.load``-able once saved)."""
-        arch = list(self.net_arch)
-        model = PPO(policy_class(self.layer_norm), self.env, learning_rate=self.learning_rate, n_steps=self.n_steps,
+        kwargs = self._policy_kwargs()
+        model = PPO(policy_class(self.layer_norm, "actor_columns" in kwargs), self.env, learning_rate=self.learning_rate,
+                    n_steps=self.n_steps,
                     batch_size=self.batch_size, n_epochs=self.n_epochs, gamma=self.gamma, gae_lambda=self.gae_lambda,
                     clip_range=self.clip_range, ent_coef=self.ent_coef, vf_coef=self.vf_coef,
-                    max_grad_norm=self.max_grad_norm, target_kl=self.target_kl, device="cpu",
-                    policy_kwargs={"net_arch": {"pi": arch, "vf": arch},
-                                   "activation_fn": SB3_ACTIVATIONS[self.activation],
-                                   "optimizer_kwargs": adam_kwargs(self.adam_eps)})
+                    max_grad_norm=self.max_grad_norm, target_kl=self.target_kl, device="cpu", policy_kwargs=kwargs)
         model.policy.load_state_dict({k: torch.as_tensor(v) for k, v in self.parameter_arrays().items()})
         model.num_timesteps = self.num_timesteps
         return model

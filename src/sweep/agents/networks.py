@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
-from stable_baselines3.common.torch_layers import MlpExtractor
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtractor
 
 HIDDEN_GAIN = math.sqrt(2.0)
 LAYER_NORM_EPS = 1e-5  # torch.nn.LayerNorm's default
@@ -191,5 +192,55 @@ class LayerNormActorCriticPolicy(ActorCriticPolicy):
                                                    activation_fn=self.activation_fn, device=self.device)
 
 
-def policy_class(layer_norm: bool):
+class ActorColumns(BaseFeaturesExtractor):
+    """The leading ``columns`` of the observation: what the actor of an asymmetric actor-critic reads (the env appends
+    the critic's own columns after them: ``HoverVecEnv.actor_columns``)."""
+
+    def __init__(self, observation_space: spaces.Box, columns: int) -> None:
+        super().__init__(observation_space, int(columns))
+        self.columns = int(columns)
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return observations[..., :self.columns]
+
+
+class AsymmetricActorCriticPolicy(ActorCriticPolicy):
+    """``MlpPolicy`` whose policy network reads the leading ``actor_columns`` of the observation and whose value network
+    reads all of it (``env.observe.critic_*``). The same init: SB3's orthogonal draw, the policy MLP's first layer
+    narrower."""
+
+    layer_norm = False
+
+    def __init__(self, *args, actor_columns: int, **kwargs) -> None:
+        self.actor_columns = int(actor_columns)   # read by _build_mlp_extractor, inside ActorCriticPolicy.__init__
+        kwargs["share_features_extractor"] = False
+        super().__init__(*args, **kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        self.pi_features_extractor = ActorColumns(self.observation_space, self.actor_columns)
+        extractor = LayerNormMlpExtractor if self.layer_norm else MlpExtractor
+        self.mlp_extractor = extractor(self.features_dim, net_arch=self.net_arch, activation_fn=self.activation_fn,
+                                       device=self.device)
+        self.mlp_extractor.policy_net = extractor(self.actor_columns, net_arch=self.net_arch,
+                                                  activation_fn=self.activation_fn, device=self.device).policy_net
+
+
+class AsymmetricLayerNormActorCriticPolicy(AsymmetricActorCriticPolicy):
+    """``AsymmetricActorCriticPolicy`` with LayerNorm in both networks."""
+
+    layer_norm = True
+
+
+def policy_class(layer_norm: bool, asymmetric: bool = False):
+    """The SB3 policy (class or name) of an actor-critic with or without LayerNorm, and with an actor that reads only
+    the leading ``actor_columns`` (``asymmetric``; the class then takes ``actor_columns`` in its policy_kwargs)."""
+    if asymmetric:
+        return AsymmetricLayerNormActorCriticPolicy if layer_norm else AsymmetricActorCriticPolicy
     return LayerNormActorCriticPolicy if layer_norm else "MlpPolicy"
+
+
+def actor_columns(env) -> int | None:
+    """The observation columns an asymmetric actor reads (``HoverVecEnv.actor_columns``), or None when the actor reads
+    them all (the critic sees nothing more)."""
+    columns = getattr(env, "actor_columns", None)
+    return None if columns is None or columns == env.observation_space.shape[0] else int(columns)

@@ -189,7 +189,7 @@ def fly(t, n_steps, obs, episode_starts, dones, noise, wind, policy, gamma, buff
         if turbulent:
             add_gusts(gust_filters, gust_draws[t], gust_sigma[t], wind_now)
         step_vehicles(vehicles, cmd, wind_now, physics)
-        task_outcome(vehicles, clipped, t_idx, task, obs, outcome, kernel.history)
+        task_outcome(vehicles, clipped, t_idx, task, obs, outcome, kernel.history, mean_wind[t], kernel.vehicle)
         any_done = False
         for i in range(n):
             ep_return[i] += rewards[i]

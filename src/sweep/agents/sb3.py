@@ -17,7 +17,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecEnv
 
 from sweep.agents.learner import Hidden
-from sweep.agents.networks import actor_critic, adam_kwargs, policy_class, remedy_rng
+from sweep.agents.networks import actor_columns, actor_critic, adam_kwargs, policy_class, remedy_rng
 from sweep.agents.onpolicy import StepwiseLearning
 from sweep.plasticity.l2 import l2_optimizer
 from sweep.training.records import Samples, UpdateRecord
@@ -32,8 +32,11 @@ class SB3PPO(StepwiseLearning, PPO):
         policy_kwargs = {"net_arch": {"pi": list(net_arch), "vf": list(net_arch)},
                          "activation_fn": ACTIVATIONS[activation],
                          "optimizer_class": torch.optim.Adam, "optimizer_kwargs": adam_kwargs(adam_eps)}
-        model = cls(policy_class(layer_norm), env, policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0,
-                    **ppo)
+        columns = actor_columns(env)
+        if columns is not None:   # an asymmetric actor-critic (env.observe.critic_*)
+            policy_kwargs["actor_columns"] = columns
+        model = cls(policy_class(layer_norm, columns is not None), env, policy_kwargs=policy_kwargs, seed=seed,
+                    device="cpu", verbose=0, **ppo)
         model.networks = actor_critic(len(net_arch), layer_norm)
         model.rng = remedy_rng(seed)
         model._initial = model.parameter_arrays()
@@ -142,9 +145,10 @@ class SB3PPO(StepwiseLearning, PPO):
         """Per network, each hidden layer's (input of the activation, its output) on ``obs``."""
         policy = self.policy
         with torch.no_grad():
-            features = policy.extract_features(torch.as_tensor(obs, dtype=torch.float32), policy.pi_features_extractor)
-            return {"policy": hidden_of(policy.mlp_extractor.policy_net, features),
-                    "value": hidden_of(policy.mlp_extractor.value_net, features)}
+            features = policy.extract_features(torch.as_tensor(obs, dtype=torch.float32))
+            pi, vf = features if isinstance(features, tuple) else (features, features)   # a tuple: asymmetric
+            return {"policy": hidden_of(policy.mlp_extractor.policy_net, pi),
+                    "value": hidden_of(policy.mlp_extractor.value_net, vf)}
 
     def loss_grad_norm(self, samples: Samples) -> float:
         """Norm of the PPO loss gradient at the current parameters (ratio 1, so no clipping), as SB3 computes it."""

@@ -17,6 +17,8 @@ Networks, by name (``networks``: the trained ones; remedies pick them by role, `
 Optimizers, by name: ``actor``, ``critic`` (both critics) and SAC's ``ent_coef``; one learning rate drives them all, as
 in SB3 (``set_learning_rate``; RECOM sets it). ``agent.policy.layer_norm`` puts a LayerNorm between each hidden Linear
 and its activation in the actor and the critics (and their targets): ``LayerNormSACPolicy``, ``LayerNormTD3Policy``.
+An asymmetric actor-critic (``env.observe.critic_*``: the env appends columns only the critics see) builds the actor
+(and TD3's target actor) on the leading ``actor_columns``: the ``Asymmetric*Policy`` classes.
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 
 from sweep.agents.learner import Hidden
-from sweep.agents.networks import Network, adam_kwargs, remedy_rng, with_layer_norm
+from sweep.agents.networks import ActorColumns, Network, actor_columns, adam_kwargs, remedy_rng, with_layer_norm
 from sweep.agents.offpolicy import RoundwiseLearning
 from sweep.agents.sb3 import ACTIVATIONS, hidden_of
 from sweep.plasticity.l2 import l2_copy, penalized
@@ -98,6 +100,34 @@ class LayerNormTD3Policy(TD3Policy):
         self.critic.optimizer = _normed_optimizer(self, self.critic, lr_schedule)
 
 
+class _ActorReadsLeadingColumns:
+    """An SB3 off-policy policy whose actor (and target actor) reads the leading ``actor_columns`` of the observation;
+    the critics read all of it (their own ``FlattenExtractor``, SAC's and TD3's default)."""
+
+    def __init__(self, *args, actor_columns: int, **kwargs) -> None:
+        self.actor_columns = int(actor_columns)   # read by make_actor, inside the policy's __init__
+        super().__init__(*args, **kwargs)
+
+    def make_actor(self, features_extractor=None):
+        return super().make_actor(ActorColumns(self.observation_space, self.actor_columns))
+
+
+class AsymmetricSACPolicy(_ActorReadsLeadingColumns, SACPolicy):
+    pass
+
+
+class AsymmetricLayerNormSACPolicy(_ActorReadsLeadingColumns, LayerNormSACPolicy):
+    pass
+
+
+class AsymmetricTD3Policy(_ActorReadsLeadingColumns, TD3Policy):
+    pass
+
+
+class AsymmetricLayerNormTD3Policy(_ActorReadsLeadingColumns, LayerNormTD3Policy):
+    pass
+
+
 def _norm_critics(critic, target) -> None:
     for module in (critic, target):
         module.q_networks = [with_layer_norm(q, head=True) for q in module.q_networks]
@@ -111,7 +141,7 @@ class _OffPolicyContract(RoundwiseLearning):
 
     algorithm = ""
     groups = GROUPS
-    layer_norm_policy: type   # the SB3 policy class with LayerNorm
+    policies: dict[tuple[bool, bool], Any]   # (layer_norm, asymmetric) -> the SB3 policy class (or name)
     logged: tuple[str, ...]   # SB3's train/* keys of one train() call that a round averages
 
     @classmethod
@@ -119,8 +149,11 @@ class _OffPolicyContract(RoundwiseLearning):
                     layer_norm: bool = False):
         """The learner of ``agent.<algorithm>`` (SB3's arguments, ``round_steps``, ``action_noise_std``) and
         ``agent.policy``."""
-        policy = cls.layer_norm_policy if layer_norm else "MlpPolicy"
-        model = cls(**_build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, policy))
+        columns = actor_columns(env)
+        kwargs = _build_kwargs(env, hyper, net_arch, activation, adam_eps, seed, cls.policies[layer_norm, columns is not None])
+        if columns is not None:
+            kwargs["policy_kwargs"]["actor_columns"] = columns
+        model = cls(**kwargs)
         model._contract_setup(seed, len(net_arch), layer_norm, hyper.get("round_steps", 2048))
         return model
 
@@ -260,7 +293,8 @@ class _OffPolicyContract(RoundwiseLearning):
         actor_mlp = self.actor.latent_pi if self.algorithm == "sac" else self.actor.mu
         actions = torch.as_tensor(self.policy._predict(x, deterministic=True).numpy())
         xa = torch.cat([x, actions], dim=1)
-        return {"actor": hidden_of(actor_mlp, x, head=self.algorithm != "sac"),
+        features = self.actor.extract_features(x, self.actor.features_extractor)   # an asymmetric actor's columns
+        return {"actor": hidden_of(actor_mlp, features, head=self.algorithm != "sac"),
                 **{f"critic_{k}": hidden_of(q, xa, head=True) for k, q in enumerate(self.critic.q_networks)}}
 
     def loss_grad_norm(self, samples: Samples) -> float:
@@ -321,13 +355,15 @@ def _build_kwargs(env: VecEnv, hyper: dict, net_arch, activation: str, adam_eps:
 
 class SB3SAC(_OffPolicyContract, SAC):
     algorithm = "sac"
-    layer_norm_policy = LayerNormSACPolicy
+    policies = {(False, False): "MlpPolicy", (True, False): LayerNormSACPolicy, (False, True): AsymmetricSACPolicy,
+                (True, True): AsymmetricLayerNormSACPolicy}
     logged = ("train/ent_coef", "train/actor_loss", "train/critic_loss", "train/ent_coef_loss")
 
 
 class SB3TD3(_OffPolicyContract, TD3):
     algorithm = "td3"
-    layer_norm_policy = LayerNormTD3Policy
+    policies = {(False, False): "MlpPolicy", (True, False): LayerNormTD3Policy, (False, True): AsymmetricTD3Policy,
+                (True, True): AsymmetricLayerNormTD3Policy}
     logged = ("train/actor_loss", "train/critic_loss")
 
     def _train_counts(self, key: str, steps: int) -> int:

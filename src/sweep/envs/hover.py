@@ -14,8 +14,11 @@
   raw state); positions stay in metres. ``observe`` appends (both off in the paper): ``rotor_speeds``, the 4 rotor
   speeds the policy's commands reach through the motor lag, as the action that commands them (in [-1, 1],
   ``rotor_speed_to_action``); ``action_history`` k, the last k actions the env applied (clipped), most recent first,
-  4 per action (at a start: the hover action, the command of the rotors' start speed). Layout: state | rotor speeds |
-  history.
+  4 per action (at a start: the hover action, the command of the rotors' start speed). ``critic_rotor_speeds`` and
+  ``critic_condition`` append columns for the critic only (an asymmetric actor-critic: the actor reads the leading
+  ``actor_columns``): the rotor speeds as above, and the condition the step flew in (the segment's mean wind in m/s,
+  the mass factor, the 4 rotor efficiencies; 8 columns). Layout: state | rotor speeds | history || critic's rotor
+  speeds | condition.
 * ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
   (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
@@ -92,6 +95,8 @@ class Task(NamedTuple):
     rotor_speeds: bool        # observe.rotor_speeds
     speed_min: float          # rad/s: the action -1 ...
     speed_max: float          # ... and +1
+    critic_rotor_speeds: bool  # observe.critic_rotor_speeds
+    critic_condition: bool     # observe.critic_condition
 
 
 def state_dim(observation: str) -> int:
@@ -99,9 +104,15 @@ def state_dim(observation: str) -> int:
     return 12 if observation == "euler" else 13
 
 
-def observation_dim(observation: str, rotor_speeds: bool, action_history: int) -> int:
-    """Columns of the observation: the state, then the 4 rotor speeds, then the last ``action_history`` actions."""
-    return state_dim(observation) + 4 * int(rotor_speeds) + 4 * int(action_history)
+CONDITION_COLUMNS = 8   # the critic's condition: mean wind (3), mass factor, 4 rotor efficiencies
+
+
+def observation_dim(observation: str, rotor_speeds: bool, action_history: int, critic_rotor_speeds: bool = False,
+                    critic_condition: bool = False) -> int:
+    """Columns of the observation: the state, the 4 rotor speeds, the last ``action_history`` actions (the actor's),
+    then the critic's own: the rotor speeds, the condition."""
+    return (state_dim(observation) + 4 * int(rotor_speeds) + 4 * int(action_history) + 4 * int(critic_rotor_speeds)
+            + CONDITION_COLUMNS * int(critic_condition))
 
 
 class Outcome(NamedTuple):
@@ -124,6 +135,7 @@ class HoverKernel(NamedTuple):
     outcome: Outcome
     gust_filters: GustFilters  # the vehicles' gust processes (at rest and unused when the wind has no gusts)
     history: np.ndarray        # (N, k, 4) float32: the last k actions, most recent first (k = observe.action_history)
+    vehicle: np.ndarray        # (5,) float64: the vehicle in force, mass factor and rotor efficiencies (critic_condition)
 
 
 class RolloutWind(NamedTuple):
@@ -135,10 +147,11 @@ class RolloutWind(NamedTuple):
 
 
 @numba.njit(cache=True)
-def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history):
+def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history, wind, vehicle):
     """After the physics step: advance each episode clock ``t_idx``, push ``actions`` into the action ``history``,
     write the observation ``obs`` and the ``outcome`` (reward, crashed = left the bounds, terminated, truncated) of
-    every vehicle (in place)."""
+    every vehicle (in place). ``wind`` (3,) is the mean wind the step flew in and ``vehicle`` (5,) the vehicle (the
+    critic's condition columns)."""
     x, v, q, w = vehicles.x, vehicles.v, vehicles.q, vehicles.w
     rewards, crashed, terminated, truncated = outcome
     world_bound, terminate_at_limit, v_scale, w_scale = (task.world_bound, task.terminate_at_limit,
@@ -180,6 +193,16 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history):
                 if j == 0:
                     history[i, 0, a] = actions[i, a]
                 obs[i, col + 4 * j + a] = history[i, j, a]
+        col += 4 * k
+        if task.critic_rotor_speeds:
+            for r in range(4):
+                obs[i, col + r] = rotor_speed_to_action(vehicles.rotor_speeds[i, r], task.speed_min, task.speed_max)
+            col += 4
+        if task.critic_condition:
+            for a in range(3):
+                obs[i, col + a] = wind[a]
+            for a in range(5):
+                obs[i, col + 3 + a] = vehicle[a]
 
 
 def segment_count(wind: WindSchedule, vehicle: VehicleSchedule, global_step: int) -> int:
@@ -245,15 +268,20 @@ class HoverVecEnv(VecEnv):
         self.speed_min = float(self.params["rotor_speed_min"])
         self.speed_max = float(self.params["rotor_speed_max"])
 
-        observe = {"rotor_speeds": False, "action_history": 0, **(observe or {})}
+        observe = {"rotor_speeds": False, "action_history": 0, "critic_rotor_speeds": False, "critic_condition": False,
+                   **(observe or {})}
         self.observe_rotor_speeds, self.action_history = bool(observe["rotor_speeds"]), int(observe["action_history"])
+        self.critic_rotor_speeds, self.critic_condition = (bool(observe["critic_rotor_speeds"]),
+                                                           bool(observe["critic_condition"]))
         start = {"tilt_deg": 0.0, "velocity": 0.0, "body_rate": 0.0, **(start or {})}
         self.start_tilt = math.radians(float(start["tilt_deg"]))
         self.start_velocity, self.start_body_rate = float(start["velocity"]), float(start["body_rate"])
         curriculum = {"start_bound_from": None, "steps": 1, **(curriculum or {})}
         self.start_bound_from = curriculum["start_bound_from"]
         self.curriculum_steps = int(curriculum["steps"])
-        obs_dim = observation_dim(observation, self.observe_rotor_speeds, self.action_history)
+        obs_dim = observation_dim(observation, self.observe_rotor_speeds, self.action_history, self.critic_rotor_speeds,
+                                  self.critic_condition)
+        self.actor_columns = observation_dim(observation, self.observe_rotor_speeds, self.action_history)
         observation_space = spaces.Box(-np.inf, np.inf, shape=(obs_dim,), dtype=np.float32)
         action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.render_mode = None
@@ -275,6 +303,7 @@ class HoverVecEnv(VecEnv):
         self._settle_gusts()
         self.hover_action = float(rotor_speed_to_action(self.hover_speed, self.speed_min, self.speed_max))
         self.history = np.full((n_envs, self.action_history, 4), self.hover_action, dtype=np.float32)
+        self.vehicle_condition = np.array([NOMINAL.mass, *NOMINAL.rotor_efficiency], dtype=np.float64)
         # outputs of task_outcome, reused every step
         self._obs_buf = np.zeros((n_envs, obs_dim), dtype=np.float32)
         self._rewards = np.zeros(n_envs, dtype=np.float32)
@@ -287,7 +316,8 @@ class HoverVecEnv(VecEnv):
                           terminate_at_limit=time_limit == "terminate", euler=observation == "euler",
                           velocity_scale=self.velocity_scale, body_rate_scale=self.body_rate_scale,
                           reward=self.reward_fn.weights, rotor_speeds=self.observe_rotor_speeds,
-                          speed_min=self.speed_min, speed_max=self.speed_max)
+                          speed_min=self.speed_min, speed_max=self.speed_max,
+                          critic_rotor_speeds=self.critic_rotor_speeds, critic_condition=self.critic_condition)
 
     @property
     def kernel(self) -> HoverKernel:
@@ -298,7 +328,7 @@ class HoverVecEnv(VecEnv):
             raise TypeError(f"a compiled rollout needs env.backend=fast, not {type(s).__name__}")
         return HoverKernel(vehicles=s.vehicles, physics=s.physics, task=self._task, t_idx=self.t_idx,
                            ep_return=self.ep_return, reward_scale=self.reward_scale, outcome=self._outcome,
-                           gust_filters=self._gust_filters, history=self.history)
+                           gust_filters=self._gust_filters, history=self.history, vehicle=self.vehicle_condition)
 
     # ---- task pieces -------------------------------------------------------------------------
     def sync_condition(self) -> None:
@@ -310,6 +340,7 @@ class HoverVecEnv(VecEnv):
             return
         if self._segments is None or segments[1] != self._segments[1]:
             vehicle = self.vehicle.at(g)
+            self.vehicle_condition[...] = (vehicle.mass, *vehicle.rotor_efficiency)
             if self._segments is not None or not vehicle.nominal:  # the backend starts nominal
                 self.sim.set_vehicle(vehicle)
         self._segments = segments
@@ -385,6 +416,12 @@ class HoverVecEnv(VecEnv):
         if self.observe_rotor_speeds:
             columns.append(rotor_speed_to_action(s.rotor_speeds, self.speed_min, self.speed_max))
         columns.append(self.history.reshape(self.num_envs, -1))
+        if self.critic_rotor_speeds:
+            columns.append(rotor_speed_to_action(s.rotor_speeds, self.speed_min, self.speed_max))
+        if self.critic_condition:   # at a start: the condition in force at the current global step
+            vehicle = self.vehicle.at(self.global_step)
+            condition = [*self.wind.velocity_at(self.global_step), vehicle.mass, *vehicle.rotor_efficiency]
+            columns.append(np.tile(np.asarray(condition, np.float64), (self.num_envs, 1)))
         return np.concatenate(columns, axis=1).astype(np.float32)
 
     def condition(self) -> Condition:
@@ -433,7 +470,8 @@ class HoverVecEnv(VecEnv):
             add_gusts(self._gust_filters, self._gust_draws(1)[0], self._gust_sigma, wind)
         self.sim.step(cmd, wind)
         self.global_step += self.num_envs
-        task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome, self.history)
+        task_outcome(self.sim.vehicles, actions, self.t_idx, self._task, self._obs_buf, self._outcome, self.history,
+                     self._wind_array[0], self.vehicle_condition)
         obs, rewards = self._obs_buf.copy(), self._rewards.copy()
         self.ep_return += rewards
         dones = self._terminated | self._truncated

@@ -58,8 +58,9 @@ def probe_fit(learner: Learner, observations: np.ndarray, steps: int = 500, batc
         return x @ params[f"{net.head}.weight"].T + params[f"{net.head}.bias"]
 
     rng = np.random.default_rng(seed)   # the probe's own generator: no global RNG is touched
-    obs = torch.as_tensor(np.asarray(observations, np.float32))
-    y = np.asarray(observations, np.float64)
+    columns = arrays[f"{net.hidden[0]}.weight"].shape[1]   # an asymmetric actor reads the leading columns
+    obs = torch.as_tensor(np.asarray(observations, np.float32)[:, :columns])
+    y = np.asarray(observations, np.float64)[:, :columns]
     for layer in (*net.hidden, net.head):   # g: a fresh random network of the same shape
         w = orthogonal(arrays[f"{layer}.weight"].shape, HIDDEN_GAIN if layer != net.head else 1.0, rng)
         y = y @ w.T

@@ -335,9 +335,10 @@ def hook_curves(runs: pd.DataFrame) -> tuple[list[metrics.Curve], list[str]]:
     return curves, notes
 
 
-def load_histories(client: MlflowClient, runs: pd.DataFrame, keys: list[str] | None = None) -> pd.DataFrame:
-    """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value). ``keys``: the
-    report's curves (``metrics``) by default."""
+def load_histories(client: MlflowClient, runs: pd.DataFrame, keys: list[str] | None = None,
+                   timestamps: bool = False) -> pd.DataFrame:
+    """Long table: run_id, key, step, value (sorted by step; a repeated step keeps its last value), and with
+    ``timestamps`` the value's MLflow time ``ts`` (ms). ``keys``: the report's curves (``metrics``) by default."""
     keys = metrics.CURVE_KEYS + metrics.OPTIONAL_KEYS if keys is None else keys
     frames = []
     for run_id, logged in zip(runs["run_id"], runs["logged"]):
@@ -349,7 +350,8 @@ def load_histories(client: MlflowClient, runs: pd.DataFrame, keys: list[str] | N
     if not frames:
         return pd.DataFrame(columns=["run_id", "key", "step", "value"])
     df = pd.concat(frames, ignore_index=True).sort_values(["run_id", "key", "step", "ts"])
-    return df.drop_duplicates(["run_id", "key", "step"], keep="last").drop(columns="ts").reset_index(drop=True)
+    df = df.drop_duplicates(["run_id", "key", "step"], keep="last")
+    return (df if timestamps else df.drop(columns="ts")).reset_index(drop=True)
 
 
 def trajectories_name(policy: str = "final") -> str:

@@ -543,14 +543,20 @@ def write_tables(runs: pd.DataFrame, histories: pd.DataFrame, conds: Conditions,
     return written
 
 
-BRIEF = ("Agent", "Wind", "Seeds", "Eval success final (%)", "Eval success best (%)", "Eval crash final (%)",
-         "Final reward")
+BRIEF = {"Agent": "Agent", "Wind": "Wind", "Seeds": "Seeds", "Eval success final (%)": "Success: final policy (%)",
+         "Eval success best (%)": "Success: best-train-reward policy (%)", "Eval crash final (%)": "Crash: final (%)",
+         "Final reward": "Final train reward"}
+BRIEF_LEGEND = ("final policy = the policy at the end of training; best-train-reward policy = the one kept at its highest "
+                "mean training episode reward (rollout/ep_rew_mean, the paper's reading), which a crash-free but "
+                "distant flight can win; success = share of the end-of-run evaluation flights within eval.success_radius "
+                "for the last eval.success_hold_s.")
 
 
 def brief(display: pd.DataFrame) -> str:
-    """The summary's few columns a terminal shows at the end of a sweep (plain fixed-width text)."""
-    rows = [list(BRIEF)] + [[str(r[c]) for c in BRIEF] for _, r in display.iterrows()]
+    """The summary's few columns a terminal shows at the end of a sweep (plain fixed-width text), headed by which
+    policy each evaluation scored, with a legend."""
+    rows = [list(BRIEF.values())] + [[str(r[c]) for c in BRIEF] for _, r in display.iterrows()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(BRIEF))]
     lines = ["  ".join(cell.ljust(w) if i < 2 else cell.rjust(w) for i, (cell, w) in enumerate(zip(row, widths)))
              for row in rows]
-    return "\n".join([lines[0], "  ".join("-" * w for w in widths), *lines[1:]]) + "\n"
+    return "\n".join([lines[0], "  ".join("-" * w for w in widths), *lines[1:], "", BRIEF_LEGEND]) + "\n"
