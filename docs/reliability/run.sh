@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# The reliability study (issue 55; experiment=reliability; docs/reliability.md), row by row, resumable across sessions.
+#
+#   docs/reliability/run.sh ppo-13d        # PPO, 16 x 128 (JAX), the paper's 13-D observation and start
+#   docs/reliability/run.sh ppo-obs        # the same + rotor speeds + the last 8 actions
+#   docs/reliability/run.sh ppo-paper      # PPO on the paper's layout, 1 x 2048 (JAX)
+#   docs/reliability/run.sh ppo-curriculum # PPO 16 x 128, 13-D, the start box widening from 0.2 m to 2 m over 500k
+#   docs/reliability/run.sh td3-anchor     # TD3 (JAX) as the anchor trains it: replay ratio 0.1, rotor speeds and the last
+#                                          # 32 actions, an alive bonus of 2 per step, the start-box curriculum
+#   docs/reliability/run.sh rows           # the rows above in that order (what a session resumes)
+#   docs/reliability/run.sh stop           # pause: stop the running row and its jobs (they resume from their checkpoints)
+#   docs/reliability/run.sh report         # the table and figure -> docs/reliability/main
+#   docs/reliability/run.sh pilot-report   # the pilot's tables (seeds 100-103, 1M) -> docs/reliability/pilot
+#   docs/reliability/run.sh export         # FINISHED runs -> docs/reliability/runs (commit them)
+#   docs/reliability/run.sh import         # the archive -> the store (re-make every table without training)
+#
+# WIND=3 runs a row under a constant 3 m/s instead of still air (wind=paper wind.speeds=[3.0]); SEEDS=0,1 other seeds;
+# BUDGET=3000000 a longer run (another job: its key has the budget). Store, checkpoints and sweep dirs live in $STUDY;
+# each row runs the code of MAIN_COMMIT from a worktree there. The pilot (experiments reliability-pilot, -pilot2) ran
+# from a worktree at PILOT_COMMITS, seeds 100-103, 1M steps; nothing the rows run was chosen on seeds 0-15.
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+STUDY=${STUDY:-/work/studies/reliability}
+MAIN_COMMIT=${MAIN_COMMIT:-HEAD}
+PILOT_COMMITS="3bb5d0a (reliability-pilot) d764b27 (reliability-pilot2)"
+PY=${PYTHON:-$ROOT/.venv/bin/python}
+ARCHIVE=$ROOT/docs/reliability/runs
+BY=agent.learner,env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.observe.critic_rotor_speeds,env.curriculum.start_bound_from
+export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
+mkdir -p "$STUDY"
+
+sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and checkpoints; output under $STUDY
+  local commit code name=$1; shift
+  commit=$(git -C "$ROOT" rev-parse --short "$MAIN_COMMIT")
+  code=$STUDY/code-$commit
+  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
+  local wind=()
+  [ -z "${WIND:-}" ] || wind=(wind=paper "wind.speeds=[${WIND}.0]" wind.segment_steps=100000000)
+  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=reliability train.checkpoint_dir="$STUDY/ckpt" \
+     hydra.sweep.dir="$STUDY/multirun/$name${WIND:+-wind$WIND}" "seed=${SEEDS:-0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15}" \
+     ${BUDGET:+"train.total_timesteps=$BUDGET"} "${wind[@]}" "$@")
+}
+PPO16=(agent=ppo agent.learner=jax env.n_envs=16 agent.ppo.n_steps=128)
+CURRICULUM=(env.curriculum.start_bound_from=0.2 env.curriculum.steps=500000)
+TD3=(agent=td3 agent.learner=jax agent.td3.learning_starts=15000 agent.td3.train_freq=10 agent.td3.gradient_steps=1
+     env.reward.alive_bonus=2.0)
+
+case ${1:-} in
+  ppo-13d)        sweep ppo-13d "${PPO16[@]}" ;;
+  ppo-obs)        sweep ppo-obs "${PPO16[@]}" env.observe.rotor_speeds=true env.observe.action_history=8 ;;
+  ppo-paper)      sweep ppo-paper agent=ppo agent.learner=jax ;;
+  ppo-curriculum) sweep ppo-curriculum "${PPO16[@]}" "${CURRICULUM[@]}" ;;
+  td3-anchor)     sweep td3-anchor "${TD3[@]}" "${CURRICULUM[@]}" env.observe.rotor_speeds=true env.observe.action_history=32 ;;
+  rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper; do "$0" "$row"; done ;;
+  stop)           drivers=$(pgrep -f "reliability/run.sh" | grep -v $$ || true)
+                  sweeps=$(pgrep -f "sweep -m experiment=reliability" || true)
+                  workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
+                  kill $drivers $sweeps 2>/dev/null || true; sleep 2
+                  kill $workers 2>/dev/null || true
+                  echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
+  report)         (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability --by "$BY" \
+                     --out "$ROOT/docs/reliability/main") ;;
+  pilot-report)   for exp in reliability-pilot reliability-pilot2; do
+                    (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment "$exp" \
+                       --by "$BY,env.reward.alive_bonus" --out "$ROOT/docs/reliability/pilot/$exp")
+                  done ;;
+  export)         for exp in reliability-pilot reliability-pilot2 reliability; do
+                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
+                  done ;;
+  import)         for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
+  *) sed -n 2,20p "$0"; exit 2 ;;
+esac
