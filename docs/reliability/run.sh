@@ -22,7 +22,7 @@ set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/reliability}
-MAIN_COMMIT=${MAIN_COMMIT:-HEAD}
+MAIN_COMMIT=${MAIN_COMMIT:-8d10031}
 PILOT_COMMITS="3bb5d0a (reliability-pilot) d764b27 (reliability-pilot2)"
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/reliability/runs
