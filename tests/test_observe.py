@@ -148,12 +148,11 @@ def test_the_compiled_off_policy_collect_is_the_env_stepped_with_its_actions(alg
     assert ends > 10 and steps == 512
 
 
-@pytest.mark.parametrize("agent,learner", [(a, i) for a in ("ppo", "sac", "td3") for i in ("sb3", "jax")])
-def test_every_learner_reads_the_wider_observation(agent, learner):
+def trained_on(agent: str, learner: str, *options: str):
+    """(learner of 8 x 8 units trained 256 steps on the hover env with ``options``, its env)."""
     steps = ["agent.ppo.n_steps=128", "agent.ppo.batch_size=64"] if agent == "ppo" else \
         [f"agent.{agent}.learning_starts=64", f"agent.{agent}.batch_size=32", f"agent.{agent}.round_steps=128"]
-    cfg = compose_cfg([f"agent={agent}", f"agent.learner={learner}", "agent.policy.net_arch=[8,8]", *steps,
-                       "env.observe.rotor_speeds=true", "env.observe.action_history=8"])
+    cfg = compose_cfg([f"agent={agent}", f"agent.learner={learner}", "agent.policy.net_arch=[8,8]", *steps, *options])
     validate(cfg)
     env = make_env(cfg.env, 1, wind_schedule(cfg.wind), 0, learning=True)
     model = build_learner(cfg.agent, env, 0, 1000)
@@ -162,6 +161,12 @@ def test_every_learner_reads_the_wider_observation(agent, learner):
     while model.num_timesteps < total:
         model.collect()
         model.update()
+    return model, env
+
+
+@pytest.mark.parametrize("agent,learner", [(a, i) for a in ("ppo", "sac", "td3") for i in ("sb3", "jax")])
+def test_every_learner_reads_the_wider_observation(agent, learner):
+    model, env = trained_on(agent, learner, "env.observe.rotor_speeds=true", "env.observe.action_history=8")
     first = [v for k, v in model.parameter_arrays().items() if v.ndim == 2]
     assert 13 + 4 + 32 in {a.shape[1] for a in first}   # the contract lays weights out (out, in) on both
     assert model.predict(env.reset(), deterministic=True)[0].shape == (1, 4)
@@ -175,19 +180,8 @@ def test_an_asymmetric_actor_reads_its_columns_the_critic_all_and_the_saved_zip_
     and the probe run; the saved model loads with SB3's own class and acts the same."""
     from stable_baselines3 import PPO, SAC, TD3
     from sweep.plasticity.probe import probe_fit
-    steps = ["agent.ppo.n_steps=128", "agent.ppo.batch_size=64"] if agent == "ppo" else \
-        [f"agent.{agent}.learning_starts=64", f"agent.{agent}.batch_size=32", f"agent.{agent}.round_steps=128"]
-    cfg = compose_cfg([f"agent={agent}", f"agent.learner={learner}", "agent.policy.net_arch=[8,8]", *steps,
-                       f"agent.policy.layer_norm={layer_norm}", "env.observe.action_history=2",
-                       "env.observe.critic_rotor_speeds=true", "env.observe.critic_condition=true"])
-    validate(cfg)
-    env = make_env(cfg.env, 1, wind_schedule(cfg.wind), 0, learning=True)
-    model = build_learner(cfg.agent, env, 0, 1000)
-    model.set_logger(configure_logger(0, None, "", False))
-    total = model.begin(256)
-    while model.num_timesteps < total:
-        model.collect()
-        model.update()
+    model, _ = trained_on(agent, learner, f"agent.policy.layer_norm={layer_norm}", "env.observe.action_history=2",
+                          "env.observe.critic_rotor_speeds=true", "env.observe.critic_condition=true")
     actor, critic = 13 + 8, 13 + 8 + 4 + 8
     arrays = model.parameter_arrays()
     first = {net.name: arrays[f"{net.hidden[0]}.weight"].shape[1] for net in model.networks}

@@ -14,8 +14,9 @@
 #   docs/reliability/run.sh export         # FINISHED runs -> docs/reliability/runs (commit them)
 #   docs/reliability/run.sh import         # the archive -> the store (re-make every table without training)
 #
-# WIND=3 runs a row under a constant 3 m/s instead of still air (wind=paper wind.speeds=[3.0]); SEEDS=0,1 other seeds;
-# BUDGET=3000000 a longer run (another job: its key has the budget). Store, checkpoints and sweep dirs live in $STUDY;
+# PPO rows run 3M steps, the off-policy rows 1M (experiment=reliability's budget: the pilot's off-policy runs flew ~5k
+# steps/s against PPO's ~20k). WIND=3 runs a row under a constant 3 m/s instead of still air (wind=paper
+# wind.speeds=[3.0]); SEEDS=0,1 other seeds; BUDGET=N another budget (another job: its key has the budget). Store, checkpoints and sweep dirs live in $STUDY;
 # each row runs the code of MAIN_COMMIT from a worktree there. The pilot (experiments reliability-pilot, -pilot2) ran
 # from a worktree at PILOT_COMMITS, seeds 100-103, 1M steps; nothing the rows run was chosen on seeds 0-15.
 set -euo pipefail
@@ -26,7 +27,9 @@ MAIN_COMMIT=${MAIN_COMMIT:-8d10031}
 PILOT_COMMITS="3bb5d0a (reliability-pilot) d764b27 (reliability-pilot2)"
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/reliability/runs
-BY=agent.learner,env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.observe.critic_rotor_speeds,env.curriculum.start_bound_from
+BY=env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.curriculum.start_bound_from,env.reward.alive_bonus
+PILOT_BY=(env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.reward.alive_bonus  # pilot 1's code had no critic_*
+          "$BY,env.observe.critic_rotor_speeds")
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 mkdir -p "$STUDY"
 
@@ -39,7 +42,10 @@ sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and 
   [ -z "${WIND:-}" ] || wind=(wind=paper "wind.speeds=[${WIND}.0]" wind.segment_steps=100000000)
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=reliability train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name${WIND:+-wind$WIND}" "seed=${SEEDS:-0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15}" \
-     ${BUDGET:+"train.total_timesteps=$BUDGET"} "${wind[@]}" "$@")
+     "${wind[@]}" "$@" ${BUDGET:+"train.total_timesteps=$BUDGET"})
+}
+ppo() {  # ppo NAME OVERRIDES...: a PPO row, 3M steps (the last of the table's budgets) unless BUDGET says otherwise
+  sweep "$@" train.total_timesteps=3000000
 }
 PPO16=(agent=ppo agent.learner=jax env.n_envs=16 agent.ppo.n_steps=128)
 CURRICULUM=(env.curriculum.start_bound_from=0.2 env.curriculum.steps=500000)
@@ -47,10 +53,10 @@ TD3=(agent=td3 agent.learner=jax agent.td3.learning_starts=15000 agent.td3.train
      env.reward.alive_bonus=2.0)
 
 case ${1:-} in
-  ppo-13d)        sweep ppo-13d "${PPO16[@]}" ;;
-  ppo-obs)        sweep ppo-obs "${PPO16[@]}" env.observe.rotor_speeds=true env.observe.action_history=8 ;;
-  ppo-paper)      sweep ppo-paper agent=ppo agent.learner=jax ;;
-  ppo-curriculum) sweep ppo-curriculum "${PPO16[@]}" "${CURRICULUM[@]}" ;;
+  ppo-13d)        ppo ppo-13d "${PPO16[@]}" ;;
+  ppo-obs)        ppo ppo-obs "${PPO16[@]}" env.observe.rotor_speeds=true env.observe.action_history=8 ;;
+  ppo-paper)      ppo ppo-paper agent=ppo agent.learner=jax ;;
+  ppo-curriculum) ppo ppo-curriculum "${PPO16[@]}" "${CURRICULUM[@]}" ;;
   td3-anchor)     sweep td3-anchor "${TD3[@]}" "${CURRICULUM[@]}" env.observe.rotor_speeds=true env.observe.action_history=32 ;;
   rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper; do "$0" "$row"; done ;;
   stop)           drivers=$(pgrep -f "reliability/run.sh" | grep -v $$ || true)
@@ -61,9 +67,10 @@ case ${1:-} in
                   echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
   report)         (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability --by "$BY" \
                      --out "$ROOT/docs/reliability/main") ;;
-  pilot-report)   for exp in reliability-pilot reliability-pilot2; do
-                    (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment "$exp" \
-                       --by "$BY,env.reward.alive_bonus" --out "$ROOT/docs/reliability/pilot/$exp")
+  pilot-report)   exps=(reliability-pilot reliability-pilot2)
+                  for i in 0 1; do
+                    (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment "${exps[$i]}" \
+                       --by "${PILOT_BY[$i]}" --out "$ROOT/docs/reliability/pilot/${exps[$i]}")
                   done ;;
   export)         for exp in reliability-pilot reliability-pilot2 reliability; do
                     (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true

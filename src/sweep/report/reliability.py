@@ -140,9 +140,12 @@ def figure(histories: pd.DataFrame, runs: pd.DataFrame, rows: list[str], out: Pa
 
 
 def row_names(runs: pd.DataFrame, by: list[str]) -> pd.Series:
-    """A row's name: the agent's label, its learner and wind, and its --by values (``key=value``, the key's last part)."""
+    """A row's name: the agent's label, its learner and wind, and the --by values that differ between the runs
+    (``key=value``, the key's last part)."""
+    differ = [k for k in by if runs[k].nunique() > 1]
+
     def name(r) -> str:
-        settings = ", ".join(f"{k.split('.')[-1]}={r[k]}" for k in by)
+        settings = ", ".join(f"{k.split('.')[-1]}={r[k]}" for k in differ)
         return f"{r['label']} [{r['learner']}, {r['wind']}]" + (f" {settings}" if settings else "")
     return runs.apply(name, axis=1)
 
