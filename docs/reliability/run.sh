@@ -27,9 +27,10 @@ MAIN_COMMIT=${MAIN_COMMIT:-8d10031}
 PILOT_COMMITS="3bb5d0a (reliability-pilot) d764b27 (reliability-pilot2)"
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/reliability/runs
-BY=env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.curriculum.start_bound_from,env.reward.alive_bonus
+# every env setting a row may change (a cell keeps one run per agent, learner, wind, seed and these values)
+BY=env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.observe.critic_rotor_speeds,env.observe.critic_condition,env.start.tilt_deg,env.curriculum.start_bound_from,env.reward.alive_bonus
 PILOT_BY=(env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.reward.alive_bonus  # pilot 1's code had no critic_*
-          "$BY,env.observe.critic_rotor_speeds")
+          env.n_envs,env.observe.rotor_speeds,env.observe.action_history,env.observe.critic_rotor_speeds,env.curriculum.start_bound_from,env.reward.alive_bonus)
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 mkdir -p "$STUDY"
 

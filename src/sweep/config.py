@@ -114,8 +114,10 @@ class Observe:
 @dataclass
 class Start:
     tilt_deg: float = key(lambda v: _finite(v) and 0 <= v <= 180, "a number in [0, 180] (degrees)")
-    velocity: float = non_negative(" (m/s)")
-    body_rate: float = non_negative(" (rad/s)")
+    velocity: float = key(lambda v: _finite(v) and 0 <= v < 100,
+                          "a number in [0, 100) (m/s; 100 leaves RotorPy's safe region at once)")
+    body_rate: float = key(lambda v: _finite(v) and 0 <= v < 100,
+                           "a number in [0, 100) (rad/s; 100 leaves RotorPy's safe region at once)")
 
 
 @dataclass

@@ -216,6 +216,9 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
         kwargs["share_features_extractor"] = False
         super().__init__(*args, **kwargs)
 
+    def _get_constructor_parameters(self) -> dict:
+        return {**super()._get_constructor_parameters(), "actor_columns": self.actor_columns}
+
     def _build_mlp_extractor(self) -> None:
         self.pi_features_extractor = ActorColumns(self.observation_space, self.actor_columns)
         extractor = LayerNormMlpExtractor if self.layer_norm else MlpExtractor

@@ -106,7 +106,11 @@ class _ActorReadsLeadingColumns:
 
     def __init__(self, *args, actor_columns: int, **kwargs) -> None:
         self.actor_columns = int(actor_columns)   # read by make_actor, inside the policy's __init__
+        kwargs["share_features_extractor"] = False   # a shared one would give the critics the actor's columns
         super().__init__(*args, **kwargs)
+
+    def _get_constructor_parameters(self) -> dict:
+        return {**super()._get_constructor_parameters(), "actor_columns": self.actor_columns}
 
     def make_actor(self, features_extractor=None):
         return super().make_actor(ActorColumns(self.observation_space, self.actor_columns))

@@ -15,8 +15,9 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
              vehicle: VehicleSchedule | None = None) -> HoverVecEnv:
     """The hover env of ``env_cfg`` with ``n_envs`` vehicles on the backend ``env.backend`` names among
     ``env.backends``, under ``wind`` and ``vehicle`` (None: nominal); the reward it returns is scaled by
-    ``env.reward_scale`` and its start box follows ``env.curriculum`` only for a learner (``learning=True``):
-    evaluations see the task's reward and start in +-``env.start_bound``."""
+    ``env.reward_scale``, and its starts follow ``env.start`` and ``env.curriculum``, only for a learner
+    (``learning=True``): evaluations score every agent on the same task, the paper's reward and starts (+-``env.start_bound``,
+    level, at rest)."""
     return HoverVecEnv(
         n_envs=n_envs, backend=instantiate(env_cfg.backends[env_cfg.backend]), wind=wind, vehicle=vehicle,
         reward=HoverReward(**env_cfg.reward),
@@ -24,7 +25,8 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
         observation=env_cfg.observation, time_limit=env_cfg.time_limit,
         observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
-        observe=dict(env_cfg.get("observe") or {}), start=dict(env_cfg.get("start") or {}),
+        observe=dict(env_cfg.get("observe") or {}),
+        start=dict(env_cfg.start) if learning and env_cfg.get("start") else None,
         curriculum=dict(env_cfg.curriculum) if learning and env_cfg.get("curriculum") else None, seed=seed)
 
 

@@ -16,8 +16,9 @@
   ``rotor_speed_to_action``); ``action_history`` k, the last k actions the env applied (clipped), most recent first,
   4 per action (at a start: the hover action, the command of the rotors' start speed). ``critic_rotor_speeds`` and
   ``critic_condition`` append columns for the critic only (an asymmetric actor-critic: the actor reads the leading
-  ``actor_columns``): the rotor speeds as above, and the condition the step flew in (the segment's mean wind in m/s,
-  the mass factor, the 4 rotor efficiencies; 8 columns). Layout: state | rotor speeds | history || critic's rotor
+  ``actor_columns``): the rotor speeds as above, and the condition the last vector step flew in (the segment's mean
+  wind in m/s, the mass factor, the 4 rotor efficiencies; 8 columns; at a run's first start, the first step's), so an
+  observation after a segment boundary shows the new condition one step later, the same in every collect. Layout: state | rotor speeds | history || critic's rotor
   speeds | condition.
 * ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
   (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
@@ -248,8 +249,9 @@ class HoverVecEnv(VecEnv):
         curriculum: dict | None = None,
         seed: int | None = None,
     ) -> None:
-        """``observe``: {rotor_speeds: bool, action_history: k}; ``start``: {tilt_deg, velocity, body_rate};
-        ``curriculum``: {start_bound_from: m or None, steps} (None: the paper's, each; see the module docstring)."""
+        """``observe``: {rotor_speeds: bool, action_history: k, critic_rotor_speeds: bool, critic_condition: bool};
+        ``start``: {tilt_deg, velocity, body_rate}; ``curriculum``: {start_bound_from: m or None, steps} (None: the
+        paper's, each; see the module docstring)."""
         self.time_limit = time_limit
         scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
         self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])
@@ -418,9 +420,10 @@ class HoverVecEnv(VecEnv):
         columns.append(self.history.reshape(self.num_envs, -1))
         if self.critic_rotor_speeds:
             columns.append(rotor_speed_to_action(s.rotor_speeds, self.speed_min, self.speed_max))
-        if self.critic_condition:   # at a start: the condition in force at the current global step
-            vehicle = self.vehicle.at(self.global_step)
-            condition = [*self.wind.velocity_at(self.global_step), vehicle.mass, *vehicle.rotor_efficiency]
+        if self.critic_condition:   # at a start as after a step: the condition the last vector step flew in
+            flown = max(0, self.global_step - self.num_envs)
+            vehicle = self.vehicle.at(flown)
+            condition = [*self.wind.velocity_at(flown), vehicle.mass, *vehicle.rotor_efficiency]
             columns.append(np.tile(np.asarray(condition, np.float64), (self.num_envs, 1)))
         return np.concatenate(columns, axis=1).astype(np.float32)
 

@@ -7,8 +7,10 @@ within ``eval.success_radius`` of the origin for the last ``eval.success_hold_s`
 training wind and ``--by`` values (``load.read_runs``); per row, over its seeds:
 
 * ``reached``: the share of seeds with an evaluation at or above the threshold at or before each budget (300k, 1M, 3M
-  env steps), with its Wilson 95% interval. A seed whose run ended before the budget without reaching it is left out of
-  that budget's count (censored), so each cell says its n;
+  env steps), with its Wilson 95% interval. An evaluation counts at the step it was scheduled for (``eval.every_timesteps``
+  multiples: a learner evaluates after the update that passes it, e.g. at 1,001,472 for 1M on rollouts of 2048). A
+  seed whose run ended before the budget without reaching it is censored: the share is over the others, and the cell
+  then shows the lower bound k of all seeds and how many ran short ("≥ 2/16, 14 ran < 3M");
 * ``median steps`` and ``median wall s`` to the first such evaluation, over the seeds that reach it (wall: the metric's
   MLflow timestamp minus the run's start, so set-up, compilation and the evaluations themselves count);
 * ``at end``: the share whose last evaluation is at or above the threshold.
@@ -49,9 +51,21 @@ def steps_label(n: int) -> str:
     return f"{n / 1e6:g}M" if n >= 1_000_000 else f"{n / 1e3:g}k"
 
 
+EVERY = "eval.every_timesteps"
+
+
+def on_schedule(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
+    """``histories`` with each evaluation at the step it was scheduled for: the multiple of its run's
+    ``eval.every_timesteps`` it was taken after (a run without one: as logged)."""
+    every = pd.to_numeric(histories["run_id"].map(runs.set_index("run_id")[EVERY]), errors="coerce")
+    use = every.notna() & (every > 0)
+    step = histories["step"].where(~use, (histories["step"] // every.where(use, 1)) * every.where(use, 1))
+    return histories.assign(step=step.astype(np.int64))
+
+
 def per_seed(runs: pd.DataFrame, histories: pd.DataFrame) -> pd.DataFrame:
-    """One row per run: its row key, the last step it evaluated at, and per threshold the first step and wall second
-    at which it hovered (NaN: never) and whether its last evaluation hovers."""
+    """One row per run: its row key, the last (scheduled) step it evaluated at, and per threshold the first step and
+    wall second at which it hovered (NaN: never) and whether its last evaluation hovers."""
     out = []
     for _, run in runs.iterrows():
         h = histories[histories["run_id"] == run["run_id"]].sort_values("step")
@@ -76,15 +90,15 @@ def table(seeds: pd.DataFrame, rows: list[str]) -> tuple[pd.DataFrame, pd.DataFr
             num = {"row": name, "threshold": t, "seeds": len(g)}
             shown = {"Row": name, "Success ≥": f"{t:.0%}", "Seeds": len(g)}
             for budget in BUDGETS:
-                first = g[f"first_step_{t:g}"]
-                reached = first <= budget
+                label = steps_label(budget)
+                reached = g[f"first_step_{t:g}"] <= budget
                 counted = reached | (g["last_step"] >= budget)   # censored: ended before the budget without it
-                share, lo, hi = wilson(int(reached.sum()), int(counted.sum()))
-                num.update({f"reached_{steps_label(budget)}": share, f"reached_{steps_label(budget)}_low": lo,
-                            f"reached_{steps_label(budget)}_high": hi, f"n_{steps_label(budget)}": int(counted.sum())})
-                shown[f"within {steps_label(budget)}"] = ("–" if not counted.any() else
-                                                          f"{int(reached.sum())}/{int(counted.sum())} "
-                                                          f"[{lo:.0%}, {hi:.0%}]")
+                k, n, short = int(reached.sum()), int(counted.sum()), int((~counted).sum())
+                share, lo, hi = wilson(k, n)
+                num.update({f"reached_{label}": share, f"reached_{label}_low": lo, f"reached_{label}_high": hi,
+                            f"n_{label}": n, f"censored_{label}": short})
+                shown[f"within {label}"] = (f"{k}/{n} [{lo:.0%}, {hi:.0%}]" if not short else
+                                            f"≥ {k}/{len(g)}, {short} ran < {label}")
             steps, wall = g[f"first_step_{t:g}"].dropna(), g[f"first_wall_{t:g}"].dropna()
             end = wilson(int(g[f"end_{t:g}"].sum()), len(g))
             num.update({"median_steps": steps.median() if len(steps) else np.nan,
@@ -145,7 +159,7 @@ def row_names(runs: pd.DataFrame, by: list[str]) -> pd.Series:
     differ = [k for k in by if runs[k].nunique() > 1]
 
     def name(r) -> str:
-        settings = ", ".join(f"{k.split('.')[-1]}={r[k]}" for k in differ)
+        settings = ", ".join(f"{k.split('.', 1)[-1]}={r[k]}" for k in differ)   # env.observe.x -> observe.x
         return f"{r['label']} [{r['learner']}, {r['wind']}]" + (f" {settings}" if settings else "")
     return runs.apply(name, axis=1)
 
@@ -153,13 +167,13 @@ def row_names(runs: pd.DataFrame, by: list[str]) -> pd.Series:
 def report(experiment: str, by: list[str], out: Path, sweep: str | None = None) -> str:
     client = load.client_for(load.tracking_uri())
     exp_id, exp_name = load.pick_experiment(client, experiment)
-    loaded = load.read_runs(client, exp_id, sweep, by, experiment=exp_name)
+    loaded = load.read_runs(client, exp_id, sweep, [*by, EVERY] if EVERY not in by else by, experiment=exp_name)
     runs = loaded.runs
     if runs.empty:
         raise load.ReportError(f"experiment {exp_name!r}: no finished runs")
     runs = runs.assign(row=row_names(runs, by))
     rows = list(dict.fromkeys(runs.sort_values(["agent", "learner", "wind", *by])["row"]))
-    histories = load.load_histories(client, runs, [SUCCESS], timestamps=True)
+    histories = on_schedule(load.load_histories(client, runs, [SUCCESS], timestamps=True), runs)
     seeds = per_seed(runs, histories)
     numbers, display = table(seeds, rows)
     out.mkdir(parents=True, exist_ok=True)
