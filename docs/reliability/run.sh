@@ -11,7 +11,7 @@
 #   docs/reliability/run.sh stop           # pause: stop the running row and its jobs (they resume from their checkpoints)
 #   docs/reliability/run.sh report         # the table and figure -> docs/reliability/main
 #   docs/reliability/run.sh pilot-report   # the pilot's tables (seeds 100-103, 1M) -> docs/reliability/pilot
-#   docs/reliability/run.sh export         # FINISHED runs -> docs/reliability/runs (commit them)
+#   docs/reliability/run.sh export         # FINISHED runs -> docs/reliability/runs (commit them; the pilot was exported from its own store)
 #   docs/reliability/run.sh import         # the archive -> the store (re-make every table without training)
 #
 # PPO rows run 3M steps, the off-policy rows 1M (experiment=reliability's budget: the pilot's off-policy runs flew ~5k
