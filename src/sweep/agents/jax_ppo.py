@@ -64,8 +64,8 @@ from stable_baselines3.common.vec_env import VecEnv  # noqa: E402
 
 from sweep.agents import rollout  # noqa: E402
 from sweep.agents.learner import Hidden  # noqa: E402
-from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_columns, actor_critic, adam_kwargs, policy_class,  # noqa: E402
-                                  remedy_rng)
+from sweep.agents.networks import (LAYER_NORM_EPS, Network, actor_columns, actor_critic, adam_kwargs,  # noqa: E402
+                                   policy_class, remedy_rng)
 from sweep.agents.onpolicy import StepwiseLearning  # noqa: E402
 from sweep.agents.sb3 import ACTIVATIONS as SB3_ACTIVATIONS  # noqa: E402
 from sweep.plasticity.l2 import penalized  # noqa: E402
@@ -192,9 +192,10 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
     # ---- construction ---------------------------------------------------------------------------
     def torch_policy(self) -> ActorCriticPolicy:
         """An SB3 ``ActorCriticPolicy`` of this architecture (its parameters are SB3's initial draw)."""
-        cls = policy_class(self.layer_norm, "actor_columns" in self._policy_kwargs())
+        kwargs = self._policy_kwargs()
+        cls = policy_class(self.layer_norm, "actor_columns" in kwargs)
         cls = ActorCriticPolicy if cls == "MlpPolicy" else cls
-        return cls(self.observation_space, self.action_space, self.lr_schedule, **self._policy_kwargs())
+        return cls(self.observation_space, self.action_space, self.lr_schedule, **kwargs)
 
     def _policy_kwargs(self) -> dict[str, Any]:
         """SB3's ``policy_kwargs`` of this architecture (with ``actor_columns`` for an asymmetric actor-critic)."""

@@ -18,8 +18,8 @@
   ``critic_condition`` append columns for the critic only (an asymmetric actor-critic: the actor reads the leading
   ``actor_columns``): the rotor speeds as above, and the condition the last vector step flew in (the segment's mean
   wind in m/s, the mass factor, the 4 rotor efficiencies; 8 columns; at a run's first start, the first step's), so an
-  observation after a segment boundary shows the new condition one step later, the same in every collect. Layout: state | rotor speeds | history || critic's rotor
-  speeds | condition.
+  observation after a segment boundary shows the new condition one step later, the same in every collect.
+  Layout: state | rotor speeds | history || critic's rotor speeds | condition.
 * ``reward_scale``: the learner is given the reward times this factor; the episode returns in ``infos``
   (``rollout/ep_rew_mean``, RECOM's R, the evaluation) stay in the task's units.
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
@@ -69,8 +69,8 @@ def action_to_rotor_speed(action, speed_min, speed_max):
 
 @numba.njit(cache=True, inline="always")
 def rotor_speed_to_action(speed, speed_min, speed_max):
-    """Rotor speed (rad/s) -> the action ``action_to_rotor_speed`` maps to it (its inverse); compiled for
-    ``task_outcome``, ``.py_func`` for NumPy arrays."""
+    """Rotor speed (rad/s) -> the action ``action_to_rotor_speed`` maps to it (its inverse); compiled, for a scalar
+    (``task_outcome``) or a NumPy array alike."""
     return 2.0 * (speed - speed_min) / (speed_max - speed_min) - 1.0
 
 
@@ -147,6 +147,13 @@ class RolloutWind(NamedTuple):
     gust_draws: np.ndarray
 
 
+@numba.njit(cache=True, inline="always")
+def write_rotor_speeds(row, col, rotor_speeds, task):
+    """Columns ``col`` to ``col + 3`` of one observation ``row``: the rotor speeds as the actions that command them."""
+    for r in range(4):
+        row[col + r] = rotor_speed_to_action(rotor_speeds[r], task.speed_min, task.speed_max)
+
+
 @numba.njit(cache=True)
 def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history, wind, vehicle):
     """After the physics step: advance each episode clock ``t_idx``, push ``actions`` into the action ``history``,
@@ -182,22 +189,19 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history, wind, ve
                 obs[i, 10 + a] = w[i, a] * w_scale
         col = 12 if euler else 13
         if task.rotor_speeds:
-            for r in range(4):
-                obs[i, col + r] = rotor_speed_to_action(vehicles.rotor_speeds[i, r], task.speed_min, task.speed_max)
+            write_rotor_speeds(obs[i], col, vehicles.rotor_speeds[i], task)
             col += 4
         k = history.shape[1]
-        for j in range(k - 1, 0, -1):
-            for a in range(4):
-                history[i, j, a] = history[i, j - 1, a]
-        for j in range(k):
-            for a in range(4):
-                if j == 0:
-                    history[i, 0, a] = actions[i, a]
-                obs[i, col + 4 * j + a] = history[i, j, a]
+        if k:
+            for j in range(k - 1, 0, -1):   # shift: the oldest action drops out, this step's comes first
+                history[i, j] = history[i, j - 1]
+            history[i, 0] = actions[i]
+            for j in range(k):
+                for a in range(4):
+                    obs[i, col + 4 * j + a] = history[i, j, a]
         col += 4 * k
         if task.critic_rotor_speeds:
-            for r in range(4):
-                obs[i, col + r] = rotor_speed_to_action(vehicles.rotor_speeds[i, r], task.speed_min, task.speed_max)
+            write_rotor_speeds(obs[i], col, vehicles.rotor_speeds[i], task)
             col += 4
         if task.critic_condition:
             for a in range(3):
