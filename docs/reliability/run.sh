@@ -7,9 +7,12 @@
 #   docs/reliability/run.sh ppo-curriculum # PPO 16 x 128, 13-D, the start box widening from 0.2 m to 2 m over 500k
 #   docs/reliability/run.sh td3-anchor     # TD3 (JAX) as the anchor trains it: replay ratio 0.1, rotor speeds and the last
 #                                          # 32 actions, an alive bonus of 2 per step, the start-box curriculum
+#   docs/reliability/run.sh sac-anchor     # SAC (JAX) with td3-anchor's settings (replay ratio, inputs, bonus, curriculum)
+#   docs/reliability/run.sh hover-heldout  # experiment=hover itself on seeds 16-31 (experiment reliability-heldout): the
+#                                          # preset, chosen on seeds 0-15, confirmed on seeds that chose nothing
 #   docs/reliability/run.sh rows           # the rows above in that order (what a session resumes)
 #   docs/reliability/run.sh stop           # pause: stop the running row and its jobs (they resume from their checkpoints)
-#   docs/reliability/run.sh report         # the table and figure -> docs/reliability/main
+#   docs/reliability/run.sh report         # the table and figure -> docs/reliability/main (held-out: .../heldout)
 #   docs/reliability/run.sh pilot-report   # the pilot's tables (seeds 100-103, 1M) -> docs/reliability/pilot
 #   docs/reliability/run.sh export         # FINISHED runs -> docs/reliability/runs (commit them; the pilot was exported from its own store)
 #   docs/reliability/run.sh import         # the archive -> the store (re-make every table without training)
@@ -23,7 +26,7 @@ set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/reliability}
-MAIN_COMMIT=${MAIN_COMMIT:-8d10031}
+MAIN_COMMIT=${MAIN_COMMIT:-4bce2ee}   # 8d10031 ran the PPO rows; 4bce2ee writes a replay checkpoint at its size
 PILOT_COMMITS="3bb5d0a (reliability-pilot) d764b27 (reliability-pilot2)"
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/reliability/runs
@@ -41,7 +44,7 @@ sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and 
   [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
   local wind=()
   [ -z "${WIND:-}" ] || wind=(wind=paper "wind.speeds=[${WIND}.0]" wind.segment_steps=100000000)
-  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=reliability train.checkpoint_dir="$STUDY/ckpt" \
+  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m "experiment=${PRESET:-reliability}" train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name${WIND:+-wind$WIND}" "seed=${SEEDS:-0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15}" \
      "${wind[@]}" "$@" ${BUDGET:+"train.total_timesteps=$BUDGET"})
 }
@@ -52,30 +55,41 @@ PPO16=(agent=ppo agent.learner=jax env.n_envs=16 agent.ppo.n_steps=128)
 CURRICULUM=(env.curriculum.start_bound_from=0.2 env.curriculum.steps=500000)
 TD3=(agent=td3 agent.learner=jax agent.td3.learning_starts=15000 agent.td3.train_freq=10 agent.td3.gradient_steps=1
      env.reward.alive_bonus=2.0)
+SAC=(agent=sac agent.learner=jax agent.sac.learning_starts=15000 agent.sac.train_freq=10 agent.sac.gradient_steps=1
+     env.reward.alive_bonus=2.0)
+ANCHOR_INPUTS=(env.observe.rotor_speeds=true env.observe.action_history=32)
 
+main() {  # the whole script is parsed before it runs (the last line), so editing it under a running row is safe
 case ${1:-} in
   ppo-13d)        ppo ppo-13d "${PPO16[@]}" ;;
   ppo-obs)        ppo ppo-obs "${PPO16[@]}" env.observe.rotor_speeds=true env.observe.action_history=8 ;;
   ppo-paper)      ppo ppo-paper agent=ppo agent.learner=jax ;;
   ppo-curriculum) ppo ppo-curriculum "${PPO16[@]}" "${CURRICULUM[@]}" ;;
-  td3-anchor)     sweep td3-anchor "${TD3[@]}" "${CURRICULUM[@]}" env.observe.rotor_speeds=true env.observe.action_history=32 ;;
-  rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper; do "$0" "$row"; done ;;
+  td3-anchor)     sweep td3-anchor "${TD3[@]}" "${CURRICULUM[@]}" "${ANCHOR_INPUTS[@]}" ;;
+  sac-anchor)     sweep sac-anchor "${SAC[@]}" "${CURRICULUM[@]}" "${ANCHOR_INPUTS[@]}" ;;
+  hover-heldout)  PRESET=hover SEEDS=${SEEDS:-16,17,18,19,20,21,22,23,24,25,26,27,28,29,30,31} \
+                    sweep hover-heldout tracking.experiment=reliability-heldout ;;
+  rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper sac-anchor hover-heldout; do "$0" "$row"; done ;;
   stop)           drivers=$(pgrep -f "reliability/run.sh" | grep -v $$ || true)
-                  sweeps=$(pgrep -f "sweep -m experiment=reliability" || true)
+                  sweeps=$(pgrep -f "sweep -m experiment=(reliability|hover)" || true)
                   workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
                   kill $drivers $sweeps 2>/dev/null || true; sleep 2
                   kill $workers 2>/dev/null || true
                   echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
   report)         (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability --by "$BY" \
-                     --out "$ROOT/docs/reliability/main") ;;
+                     --out "$ROOT/docs/reliability/main")
+                  (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability-heldout --by env.n_envs \
+                     --out "$ROOT/docs/reliability/heldout") ;;
   pilot-report)   exps=(reliability-pilot reliability-pilot2)
                   for i in 0 1; do
                     (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment "${exps[$i]}" \
                        --by "${PILOT_BY[$i]}" --out "$ROOT/docs/reliability/pilot/${exps[$i]}")
                   done ;;
-  export)         for exp in reliability-pilot reliability-pilot2 reliability; do
+  export)         for exp in reliability-pilot reliability-pilot2 reliability reliability-heldout; do
                     (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                   done ;;
   import)         for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,20p "$0"; exit 2 ;;
+  *) sed -n 2,24p "$0"; exit 2 ;;
 esac
+}
+main "$@"; exit $?
