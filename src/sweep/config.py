@@ -342,6 +342,7 @@ class Agent:
     sac: Optional[SAC] = None
     td3: Optional[TD3] = None
     policy: Policy = field(default_factory=Policy)
+    twin: Optional[str] = key(lambda v: v in (None, "fresh"), "fresh (twin=fresh, conf/twin/) or absent", default=None)
     # and the agent's remedies: any other key holding a block with a _target_ (conf/remedy/), checked against the
     # ``Settings`` of the class it names (``validate``)
 
@@ -594,6 +595,7 @@ def validate(cfg: DictConfig) -> None:
     classes = [(where, block, check_component(where, block)) for where, block in blocks]
     _cross_rules(OmegaConf.merge(OmegaConf.structured(SweepConfig), plain))
     whole = OmegaConf.to_container(cfg, resolve=True)
+    _twin_rules(whole["agent"])
     algorithm = algorithm_of(whole["agent"])
     for where, block, cls in classes:   # what a hook asks of the rest of the run (e.g. RECOM: a constant LR schedule)
         if runs(block):
@@ -602,6 +604,30 @@ def validate(cfg: DictConfig) -> None:
                 raise ConfigError(f"{where}: {cls.__name__} works with agent.algorithm={'|'.join(works)}, not with "
                                   f"agent {whole['agent']['name']}'s {algorithm}")
             cls.check_config(where, block, whole)
+
+
+TWIN_SUFFIX, TWIN_LABEL = "_fresh", " (fresh)"   # twin=fresh: the agent's name and label as the twin's runs log them
+
+
+def agent_identity(agent) -> tuple[str, str]:
+    """The run's agent name and label (its MLflow tags ``agent`` and ``agent_label``): the agent's own, or with
+    twin=fresh its fresh twin's, ``<name>_fresh`` and ``<label> (fresh)``."""
+    if agent.get("twin") is None:
+        return agent["name"], agent["label"]
+    return agent["name"] + TWIN_SUFFIX, agent["label"] + TWIN_LABEL
+
+
+def _twin_rules(agent: dict) -> None:
+    """twin=fresh needs an agent that keeps its networks across changes (PPO's twin is agent=reset_all) and the
+    reset that makes the twin fresh switched on."""
+    if agent.get("twin") is None:
+        return
+    if agent["name"] in ("ppo", "reset_all"):
+        raise ConfigError(f"twin=fresh with agent={agent['name']}: PPO's fresh twin is agent=reset_all (the plasticity "
+                          "study's reference); twin=fresh composes with any other agent")
+    if not runs(agent.get("reset_all", {})):
+        raise ConfigError("agent.reset_all.enabled=false with twin=fresh: must be true (it draws the twin's fresh "
+                          "networks at every change)")
 
 
 def validate_section(cfg: DictConfig, name: str) -> None:

@@ -25,7 +25,7 @@ from threadpoolctl import threadpool_limits
 from sweep.agents import build_learner
 from sweep import metrics, portable
 from sweep.checkpoint import JobRecord, job_key, load_checkpoint
-from sweep.config import (ConfigError, algorithm_of, drop_unused_algorithm_blocks, one_line, settings,
+from sweep.config import (ConfigError, agent_identity, algorithm_of, drop_unused_algorithm_blocks, one_line, settings,
                           switch_off_unrun_remedy_settings, validate)
 from sweep.envs.factory import make_env, vehicle_schedule, wind_schedule
 from sweep.evaluate import evaluate, flight_conditions
@@ -39,7 +39,8 @@ log = logging.getLogger("sweep")
 
 
 def job_tags(cfg: DictConfig) -> dict[str, str]:
-    tags = {"agent": cfg.agent.name, "agent_label": cfg.agent.label, "wind": cfg.wind.name,
+    name, label = agent_identity(cfg.agent)
+    tags = {"agent": name, "agent_label": label, "wind": cfg.wind.name,
             "vehicle": cfg.vehicle.name, "seed": str(cfg.seed), "backend": cfg.env.backend,
             "learner": cfg.agent.learner, "sweep": "single", "job": "0", "portable": str(bool(cfg.train.portable)).lower(),
             "cpu_model": portable.cpu_model(), "cpu_flags": portable.cpu_flags_hash()}

@@ -12,7 +12,8 @@ three visions (a lower bound than MIN_DELTA_E: at 14 the gaps between the named 
 colours). Two new agents of one report whose names hash to the same colour are told apart: in name order, the
 second steps to the next DERIVED colour no agent of the report has (``agent_colours``); with more new agents than
 DERIVED colours, ``looks`` falls back to free named colours and ROUND_DASHES. Agents a figure does not highlight
-are drawn thin in GREY (``figures``).
+are drawn thin in GREY (``figures``). An agent's fresh twin (``<agent>_fresh``, twin=fresh) takes its agent's colour
+and TWIN_DASH, so it reads as the twin.
 """
 from __future__ import annotations
 
@@ -54,6 +55,9 @@ _WHITE = np.array([0.95047, 1.0, 1.08883])  # D65
 # every other agent is solid.
 DASHES = {"ppo": "-", "l2": (0, (4, 1.5)), "recom_l2": (0, (1.2, 1.2))}
 OTHER_DASH = "-"
+# A fresh twin (twin=fresh: "<agent>_fresh") is drawn in its agent's colour with this dash-dot, unlike every DASHES.
+TWIN_SUFFIX = "_fresh"   # config.TWIN_SUFFIX (the report reads stores, not configs)
+TWIN_DASH = (0, (5, 1.5, 1, 1.5))
 # Once a report's conditions have used every free colour, the colours repeat with these dashes.
 ROUND_DASHES = [(0, (8, 2)), (0, (0.6, 2)), (0, (3, 1, 1, 1, 1, 1)), (0, (2, 2)), (0, (6, 1, 1, 1, 1, 1, 1, 1)),
                 (0, (10, 1.5, 2, 1.5)), (0, (3, 3)), (0, (1, 1, 4, 1))]
@@ -73,8 +77,14 @@ def ordered(agents, key=None) -> list[str]:
     return [a for a in KNOWN if a in agents] + sorted(agents - set(KNOWN), key=key)
 
 
+def twinned(agent: str) -> str | None:
+    """The agent whose fresh twin ``agent`` is (``<agent>_fresh``, run with twin=fresh), else None. PPO's twin,
+    reset_all, keeps its own colour and name."""
+    return agent[:-len(TWIN_SUFFIX)] if agent.endswith(TWIN_SUFFIX) and agent not in AGENT_COLOURS else None
+
+
 def dashes(agent: str):
-    return DASHES.get(agent, OTHER_DASH)
+    return TWIN_DASH if twinned(agent) else DASHES.get(agent, OTHER_DASH)
 
 
 def arm_title(wind: str) -> str:
@@ -107,7 +117,9 @@ def _slot(agent: str) -> int:
 
 
 def agent_colour(agent: str) -> str:
-    """The agent's own colour: AGENT_COLOURS, else DERIVED picked by its name."""
+    """The agent's own colour: AGENT_COLOURS, a fresh twin its agent's, else DERIVED picked by its name."""
+    if twinned(agent):
+        return agent_colour(twinned(agent))
     return AGENT_COLOURS.get(agent) or DERIVED[_slot(agent)]
 
 
@@ -117,10 +129,12 @@ def agent_colours(agents) -> dict[str, str]:
     agent of the report has; once every DERIVED colour is taken, its own again (``looks`` then tells it apart)."""
     agents = list(dict.fromkeys(agents))
     out = {a: AGENT_COLOURS[a] for a in agents if a in AGENT_COLOURS}
-    for agent in sorted(a for a in agents if a not in AGENT_COLOURS):
+    for agent in sorted(a for a in agents if a not in AGENT_COLOURS and not twinned(a)):
         k = _slot(agent)
         free = [c for c in DERIVED[k:] + DERIVED[:k] if c not in out.values()]
         out[agent] = free[0] if free else DERIVED[k]
+    for twin in [a for a in agents if twinned(a)]:   # the colour its agent has in this report
+        out[twin] = out.get(twinned(twin)) or agent_colour(twin)
     return {a: out[a] for a in agents}
 
 
