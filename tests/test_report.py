@@ -1420,7 +1420,8 @@ def test_interval_rows_are_drawn_as_rliable_draws_them():
     plt.close("all")
 
 
-NEW_AGENTS = ["weight_clip", "sac", "td3", "layer_norm_fresh"]  # agents of no fixed colour
+NEW_AGENTS = ["weight_clip", "sac", "td3", "layer_norm_reset_all"]  # agents of no fixed colour (a twin, <agent>_fresh,
+# takes its agent's colour on purpose: tests/test_twin.py)
 
 
 def test_every_agent_has_a_colour_apart_from_the_others_for_colour_blind_readers():

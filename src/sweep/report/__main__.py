@@ -19,7 +19,8 @@ wind) and segment_scores_end (the same for the success at each segment's end), t
 learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's segments),
 relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the rank correlation of the probe and
 the network's readings to it, reading_correlation.csv and the figure readings_<wind>; every run's measures and
-readings in relearning_runs.csv) and interval_relearning.
+readings in relearning_runs.csv) and interval_relearning. Agents whose fresh twins ran beside them (twin=fresh; PPO's
+is reset_all) add twins.{md,csv} and the figure twins (each agent against its own twin, paired by seed: twins.py).
 """
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     from sweep import metrics
     from sweep.config import one_line
     from sweep.report import (conditions, figures, highlight as emphasis, intervals, load, relearning, stats, style,
-                              tables)
+                              tables, twins)
 
     uri = load.tracking_uri()
     try:
@@ -135,6 +136,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
     written += tables.write_tables(runs, histories, conds, out_dir, base, at, late, vs, per_run, evals, scores)
     written += relearning.write(runs, per_run, histories, evals, relearn, conds, shown, out_dir, vs)
     written += relearning.write_learned(runs, evals, relearn, conds, shown, out_dir)
+    written += twins.write(runs, evals, relearn, conds, shown, out_dir)
     print(f"sweep.report: wrote {len(written)} files")
     print("\n" + (out_dir / "brief.txt").read_text())
     print("Figures to open:\n" + "\n".join(f"  {p.resolve()}" for p in written if p.suffix == ".png"))

@@ -273,8 +273,8 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
             x = rows["segment"].to_numpy() + (i - (len(present) - 1) / 2) * width
             coloured = shown.is_coloured(wind, conds.agent(cond))
             colour = conds.color(cond) if coloured else "0.75"
-            look = (dict(color=colour, marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5, zorder=3) if coloured
-                    else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
+            look = (dict(color=colour, ls=conds.dash(cond), marker="o", ms=3, lw=0.8, elinewidth=0.9, capsize=1.5,
+                         zorder=3) if coloured else dict(color=colour, marker="o", ms=2, lw=0.5, zorder=1))
             series = [(axes[0, col], 100 * rows[f"{measure}_mean"].to_numpy(),
                        100 * rows[f"{measure}_ci95"].fillna(0).to_numpy())]
             if has_diff and rows[diff].notna().any():
@@ -286,7 +286,7 @@ def segment_scores(numbers: pd.DataFrame, conds, shown, out: Path, reference: st
                 else:
                     ax.plot(x, y, label=conds.series(cond), **look)
             if coloured:
-                handles.setdefault(cond, Line2D([], [], color=colour, marker="o", ms=3, lw=0.8,
+                handles.setdefault(cond, Line2D([], [], color=colour, ls=conds.dash(cond), marker="o", ms=3, lw=0.8,
                                                 label=conds.series(cond)))
             else:
                 grey.setdefault(cond, conds.series(cond))

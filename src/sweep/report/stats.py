@@ -8,6 +8,8 @@ Statistics used (all over seeds; a seed is one run):
   independently;
 * difference of means to a reference condition (the leaderboard's ``--vs``): 95% percentile-bootstrap CI,
   both conditions' runs resampled independently;
+* difference to a paired condition (an agent and its fresh twin, the same seeds): the mean of the per-seed
+  differences, 95% percentile-bootstrap CI resampling the pairs;
 * probability of improvement: rliable's ``metrics.probability_of_improvement`` (Mann-Whitney U / (n_x n_y)),
   with a 95% CI from independent bootstrap resampling of both agents' runs.
 
@@ -234,6 +236,19 @@ def mean_diff_ci(scores_x, scores_y) -> tuple[float, float, float]:
 
     ci = _bootstrap((x, y), diff, vectorized=True, paired=False).confidence_interval
     return point, float(ci.low), float(ci.high)
+
+
+def paired_diff_ci(scores_x: pd.Series, scores_y: pd.Series) -> tuple[float, float, float, int]:
+    """mean(X_s - Y_s) over the seeds s both have (two Series indexed by seed), its 95% percentile-bootstrap CI
+    resampling the pairs (NaN CI below 2 pairs), and the number of pairs."""
+    both = pd.concat([scores_x.rename("x"), scores_y.rename("y")], axis=1, join="inner").dropna()
+    d = (both["x"] - both["y"]).to_numpy(dtype=float)
+    if len(d) == 0:
+        return np.nan, np.nan, np.nan, 0
+    if len(d) < 2:
+        return float(d.mean()), np.nan, np.nan, 1
+    ci = _bootstrap((d,), np.mean, vectorized=True).confidence_interval
+    return float(d.mean()), float(ci.low), float(ci.high), len(d)
 
 
 def poi_ci(scores_x, scores_y) -> tuple[float, float, float]:

@@ -1,0 +1,152 @@
+"""Each agent against a fresh network of its own kind (issue 56; README "Against a fresh network of its own kind").
+
+An agent's fresh twin (twin=fresh, logged as ``<agent>_fresh``; PPO's twin is ``reset_all``) flies segment 0 as its
+agent does, bit for bit (same seed, no change yet), then draws the agent's own networks and optimizer afresh at every
+change. So the twin's runs pair with the agent's by seed, exactly, and per agent x wind (x --by values):
+
+* per segment k >= 1, and for the re-learning AUC (relearning.per_run: the mean AUC over the segments after the
+  first): Δ = agent − own twin, the mean of the per-seed differences with a 95% percentile-bootstrap CI over the
+  pairs (stats.paired_diff_ci), and P(> own twin) (rliable's probability of improvement [95% CI], as every other
+  reference of the report); beside it Δ vs reset_all (PPO's fresh network, the study's reference until twins);
+* segment 0: how many pairs flew it identically (equal AUC and end success). It should be all of them; a pair that
+  differs ran other code or settings, and the report says so.
+
+Negative Δ vs own twin: the agent re-learns worse than a fresh network of its own kind (plasticity lost); positive:
+what it kept helps (transfer). ``write``: twins.csv (per segment), twins.md, and the figure twins (segment AUC,
+then Δ vs own twin per segment; figures.segment_scores).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from sweep.report import figures, stats
+from sweep.report.conditions import baseline_of
+from sweep.report.style import TWIN_SUFFIX
+from sweep.report.tables import _identity, _ordered_groups, interval, markdown, provenance
+
+REFERENCE = "reset_all"   # a fresh plain PPO network at every change: PPO's own twin
+
+
+def twin_agent(agent: str) -> str:
+    """The agent whose runs are ``agent``'s fresh twin: reset_all for PPO, else ``<agent>_fresh``."""
+    return REFERENCE if agent == "ppo" else agent + TWIN_SUFFIX
+
+
+def twin_conditions(conds, runs: pd.DataFrame) -> dict[tuple[str, str], str]:
+    """(wind, condition) -> its twin's condition (same --by values), for each condition whose twin ran in that wind."""
+    out = {}
+    for wind, g in runs.groupby("wind"):
+        table = conds.table.loc[[c for c in conds.order if c in set(g["condition"])]]
+        for cond in table.index:
+            twin = baseline_of(table, cond, "agent", twin_agent(conds.agent(cond)))
+            if twin is not None and conds.agent(cond) != REFERENCE:
+                out[(wind, cond)] = twin
+    return out
+
+
+def _by_seed(df: pd.DataFrame, cond: str, column: str) -> pd.Series:
+    rows = df[df["condition"] == cond]
+    return pd.Series(rows[column].to_numpy(dtype=float), index=rows["seed"].to_numpy())
+
+
+def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> pd.DataFrame:
+    """Per condition x wind x segment, for each agent of ``pairs`` and each twin: the AUC (seed mean, 95% Student-t
+    half-width), and for the agent the paired Δ AUC vs its twin [CI], the pairs, P(> twin) [CI], and on segment 0
+    ``same_pairs`` (pairs whose AUC and end success are equal)."""
+    df = runs[["run_id", "wind", "condition", "seed"]].merge(seg, on="run_id")
+    drawn = {c for key, twin in pairs.items() for c in (key[1], twin)}
+    rows = []
+    for wind, cond, g in _ordered_groups(df, conds):
+        if cond not in drawn:
+            continue
+        twin = pairs.get((wind, cond))
+        theirs = df[(df["wind"] == wind) & (df["condition"] == twin)] if twin else df.iloc[0:0]
+        for k, s in g.groupby("segment"):
+            mean, half, n = stats.mean_t_ci(s["auc"])
+            row = {**_identity(conds, cond, wind), "condition": cond, "segment": int(k),
+                   "start": int(s["start"].iloc[0]), "end_step": int(s["end_step"].iloc[0]), "n_seeds": n,
+                   "auc_mean": mean, "auc_ci95": half, "twin": twin or ""}
+            other = theirs[theirs["segment"] == k]
+            if twin and len(other):
+                mine, its = _by_seed(s, cond, "auc"), _by_seed(other, twin, "auc")
+                d, lo, hi, n_pairs = stats.paired_diff_ci(mine, its)
+                p, p_lo, p_hi = stats.poi_ci(s["auc"], other["auc"])
+                row.update({"auc_vs_twin": d, "auc_vs_twin_low": lo, "auc_vs_twin_high": hi, "pairs": n_pairs,
+                            "p_improve_over_twin": p, "p_improve_over_twin_low": p_lo,
+                            "p_improve_over_twin_high": p_hi})
+                if k == 0:
+                    ends = pd.concat([_by_seed(s, cond, "end"), _by_seed(other, twin, "end")], axis=1, join="inner")
+                    aucs = pd.concat([mine, its], axis=1, join="inner")
+                    row["same_pairs"] = int(((aucs.iloc[:, 0] == aucs.iloc[:, 1])
+                                             & (ends.iloc[:, 0] == ends.iloc[:, 1])).sum())
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: dict) -> pd.DataFrame:
+    """Per agent x wind of ``pairs``: the re-learning AUC's paired Δ vs its own twin [CI], P(> twin) [CI], and Δ vs
+    reset_all [CI] (unpaired: other networks on the same seeds) where reset_all ran."""
+    df = runs[["run_id", "wind", "condition", "seed"]].merge(relearn[["run_id", "relearning"]], on="run_id")
+    rows = []
+    for (wind, cond), twin in pairs.items():
+        here = df[df["wind"] == wind]
+        mine, its = _by_seed(here, cond, "relearning"), _by_seed(here, twin, "relearning")
+        d, lo, hi, n = stats.paired_diff_ci(mine, its)
+        p = stats.poi_ci(mine, its)
+        ref = baseline_of(conds.table.loc[[c for c in conds.order if c in set(here["condition"])]], cond, "agent",
+                          REFERENCE)
+        r = stats.mean_diff_ci(mine, _by_seed(here, ref, "relearning")) if ref else (np.nan,) * 3
+        rows.append({**_identity(conds, cond, wind), "condition": cond, "twin": twin, "pairs": n,
+                     "relearning_vs_twin": d, "relearning_vs_twin_low": lo, "relearning_vs_twin_high": hi,
+                     "p_improve_over_twin": p[0], "p_improve_over_twin_low": p[1], "p_improve_over_twin_high": p[2],
+                     f"relearning_vs_{REFERENCE}": r[0], f"relearning_vs_{REFERENCE}_low": r[1],
+                     f"relearning_vs_{REFERENCE}_high": r[2]})
+    return pd.DataFrame(rows)
+
+
+def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, shown, out) -> list:
+    """twins.csv (per segment), twins.md (one row per agent x wind) and the figure twins; nothing when no agent of
+    the report has its twin beside it."""
+    pairs = twin_conditions(conds, runs)
+    if not pairs or not len(seg):
+        return []
+    per_segment = segment_pairs(runs, seg, conds, pairs)
+    whole = relearning_pairs(runs, relearn, conds, pairs) if len(relearn) else pd.DataFrame()
+    per_segment.to_csv(out / "twins.csv", index=False)
+    display = []
+    for (wind, cond), twin in pairs.items():
+        mine = per_segment[(per_segment["wind"] == wind) & (per_segment["condition"] == cond)]
+        first = mine[mine["segment"] == 0]
+        w = whole[(whole["wind"] == wind) & (whole["condition"] == cond)] if len(whole) else whole
+        row = {"Agent": cond, "Twin": twin, "Wind": wind, "Pairs": int(mine["pairs"].max()) if "pairs" in mine else 0,
+               "Segment 0 the same run (pairs)": (f"{int(first['same_pairs'].iloc[0])}/{int(first['pairs'].iloc[0])}"
+                                                  if len(first) and "same_pairs" in first else "–")}
+        if len(w):
+            v = w.iloc[0]
+            row.update({
+                "Re-learning AUC Δ vs own twin (pp) [95% CI]": interval(*(100 * v[f"relearning_vs_twin{s}"]
+                                                                         for s in ("", "_low", "_high")), 0),
+                "P(> own twin) [95% CI]": interval(v["p_improve_over_twin"], v["p_improve_over_twin_low"],
+                                                   v["p_improve_over_twin_high"], 2),
+                f"Δ vs {REFERENCE} (pp) [95% CI]": interval(*(100 * v[f"relearning_vs_{REFERENCE}{s}"]
+                                                             for s in ("", "_low", "_high")), 0)})
+        for r in mine[mine["segment"] >= 1].itertuples():
+            row[f"segment {r.segment}: Δ (pp)"] = interval(100 * r.auc_vs_twin, 100 * r.auc_vs_twin_low,
+                                                            100 * r.auc_vs_twin_high, 0)
+        display.append(row)
+    text = (provenance(runs) + "Each agent against its own fresh twin (twin=fresh: the agent's networks and optimizer "
+            f"drawn afresh at every change; PPO's twin is {REFERENCE}). Both fly segment 0 as the same run (same seed, "
+            "no change yet): 'Segment 0 the same run' counts the pairs whose segment-0 AUC and end success are equal. "
+            "Δ = the agent's eval-success AUC minus its twin's, mean of the per-seed differences (runs paired by "
+            "seed), 95% percentile-bootstrap CI over the pairs, in percentage points: the re-learning AUC (mean over "
+            "the segments after the first) and each later segment. Negative: the agent re-learns worse than a fresh "
+            "network of its own kind (plasticity lost); positive: what it kept helps. P(> own twin) = rliable's "
+            f"probability of improvement [95% bootstrap CI]; Δ vs {REFERENCE} as in relearning.md (unpaired).\n\n"
+            + markdown(pd.DataFrame(display).fillna("–")))
+    (out / "twins.md").write_text(text)
+    return [out / "twins.csv", out / "twins.md"] + figures.segment_scores(
+        per_segment.assign(**{c: per_segment.get(c, np.nan) for c in ("auc_vs_twin", "auc_vs_twin_low",
+                                                                      "auc_vs_twin_high")}),
+        conds, shown, out, reference="twin", name="twins", runs_shown="seeds (agents and their fresh twins)",
+        diff_label="AUC − its own fresh twin's\n(points, paired by seed)")
