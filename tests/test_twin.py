@@ -39,11 +39,16 @@ def test_every_agent_but_ppo_has_a_fresh_twin_on_each_of_its_learners(agent):
 @pytest.mark.parametrize("overrides,message", [
     (["agent=ppo"], "twin=fresh with agent=ppo: PPO's fresh twin is agent=reset_all"),
     (["agent=reset_all"], "twin=fresh with agent=reset_all: PPO's fresh twin is agent=reset_all"),
-    (["agent=layer_norm", "agent.reset_all.enabled=false"], "agent.reset_all.enabled=false with twin=fresh: must be true"),
+    (["agent=layer_norm", "twin=fresh", "agent.reset_all.enabled=false"],
+     "agent.reset_all.enabled=false with agent.twin=fresh: the twin needs the reset_all remedy on"),
+    (["agent=layer_norm", "+agent.twin=fresh"], "no agent.reset_all block with agent.twin=fresh: the twin needs"),
+    (["agent=layer_norm", "twin=fresh", "~agent.reset_all"], "no agent.reset_all block with agent.twin=fresh"),
 ])
 def test_a_twin_that_would_not_be_one_is_refused_in_one_line(overrides, message):
+    if not any(o.startswith(("twin=", "+agent.twin")) for o in overrides):
+        overrides = [*overrides, "twin=fresh"]
     with pytest.raises(ConfigError, match="^" + message.replace("(", r"\(")):
-        validate(compose_cfg([*overrides, "twin=fresh"]))
+        validate(compose_cfg(overrides))
 
 
 def test_the_switch_moves_no_job_key_and_the_twin_is_its_own_job():

@@ -67,6 +67,19 @@ def test_each_agent_against_its_own_fresh_twin_on_hand_built_evaluations(tmp_pat
     assert "twin" in panels[1]["ylabel"]
 
 
+def test_a_twin_without_evaluations_leaves_its_cells_empty(tmp_path):
+    """layer_norm_fresh ran without in-training evaluations: no pairs for LayerNorm ("–"), PPO's still there."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_segment_runs(MlflowClient(uri), "twins", [(a, TWIN_EVALS[a], [], "current") for a in ("ppo", "reset_all",
+                                                                                               "layer_norm")]
+                     + [("layer_norm_fresh", [[], [], []], [], "current")])
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "twins")
+    assert code == 0, stdout + stderr
+    shown = md_table(tmp_path / "out" / "twins.md").set_index("Agent")
+    assert shown.loc["PPO", "Segment 0 the same run (pairs)"] == "2/2"
+    assert shown.loc["layer_norm", "Segment 0 the same run (pairs)"] == "–"
+
+
 def test_no_twins_no_twin_files(tmp_path):
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     log_segment_runs(MlflowClient(uri), "seg", [("layer_norm", TWIN_EVALS["layer_norm"], [], "current"),

@@ -71,7 +71,7 @@ case ${1:-} in
                     sweep hover-heldout tracking.experiment=reliability-heldout ;;
   rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper sac-anchor hover-heldout; do "$0" "$row"; done ;;
   stop)           drivers=$(pgrep -f "reliability/run.sh" | grep -v $$ || true)
-                  sweeps=$(pgrep -f "sweep -m experiment=(reliability|hover)" || true)
+                  sweeps=$(pgrep -f "hydra.sweep.dir=$STUDY/multirun/" || true)
                   workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
                   kill $drivers $sweeps 2>/dev/null || true; sleep 2
                   kill $workers 2>/dev/null || true
@@ -79,7 +79,7 @@ case ${1:-} in
   report)         (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability --by "$BY" \
                      --out "$ROOT/docs/reliability/main")
                   (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment reliability-heldout --by env.n_envs \
-                     --out "$ROOT/docs/reliability/heldout") ;;
+                     --out "$ROOT/docs/reliability/heldout") || echo "(no held-out runs yet: run.sh hover-heldout)" ;;
   pilot-report)   exps=(reliability-pilot reliability-pilot2)
                   for i in 0 1; do
                     (cd "$STUDY" && "$PY" -m sweep.report.reliability --experiment "${exps[$i]}" \

@@ -625,9 +625,10 @@ def _twin_rules(agent: dict) -> None:
     if agent["name"] in ("ppo", "reset_all"):
         raise ConfigError(f"twin=fresh with agent={agent['name']}: PPO's fresh twin is agent=reset_all (the plasticity "
                           "study's reference); twin=fresh composes with any other agent")
-    if not runs(agent.get("reset_all", {})):
-        raise ConfigError("agent.reset_all.enabled=false with twin=fresh: must be true (it draws the twin's fresh "
-                          "networks at every change)")
+    if "reset_all" not in agent or not runs(agent["reset_all"]):
+        what = "agent.reset_all.enabled=false" if "reset_all" in agent else "no agent.reset_all block"
+        raise ConfigError(f"{what} with agent.twin=fresh: the twin needs the reset_all remedy on (it draws the twin's "
+                          "fresh networks at every change); use twin=fresh")
 
 
 def validate_section(cfg: DictConfig, name: str) -> None:

@@ -29,6 +29,7 @@ from mlflow.exceptions import MlflowException  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from sweep import metrics  # noqa: E402
+from sweep.config import TWIN_SUFFIX  # noqa: E402
 from sweep.status import read_status  # noqa: E402
 
 # What a run logged and the report reads: sweep.metrics (one registry of keys, labels, figures and tables).
@@ -279,7 +280,8 @@ def unrun_jobs(sweeps, run_ids: set[str], experiment: str | None, by: list[str] 
             tags = {"wind": config.get("wind.name", "?"), "vehicle": config.get("vehicle.name", "nominal")}
             seed = config.get("seed", "-1")
             reason = " ".join(str(status.get("reason", "")).split())
-            out.append({"agent": config.get("agent.name", "?"), "learner": learner,
+            twin = config.get("agent.twin") not in (None, "None", "null")   # twin=fresh: config.agent_identity's name
+            out.append({"agent": config.get("agent.name", "?") + (TWIN_SUFFIX if twin else ""), "learner": learner,
                         "wind": metrics.condition_arm(tags),
                         "seed": int(seed) if seed.lstrip("-").isdigit() else -1,
                         **{key: learner if key == LEARNER else by_value(config, key) for key in by},

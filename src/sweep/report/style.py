@@ -25,6 +25,8 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from sweep.config import TWIN_SUFFIX  # noqa: E402  (twin=fresh logs its agent as <agent> + TWIN_SUFFIX)
+
 KNOWN = ["ppo", "l2", "recom_l2"]  # the paper's agents (legend labels: each agent's YAML `label:`, conditions.py)
 AGENT_COLOURS = {
     "ppo": "#D55E00", "l2": "#0072B2", "recom_l2": "#009E73",    # the paper's agents (Okabe-Ito)
@@ -56,7 +58,6 @@ _WHITE = np.array([0.95047, 1.0, 1.08883])  # D65
 DASHES = {"ppo": "-", "l2": (0, (4, 1.5)), "recom_l2": (0, (1.2, 1.2))}
 OTHER_DASH = "-"
 # A fresh twin (twin=fresh: "<agent>_fresh") is drawn in its agent's colour with this dash-dot, unlike every DASHES.
-TWIN_SUFFIX = "_fresh"   # config.TWIN_SUFFIX (the report reads stores, not configs)
 TWIN_DASH = (0, (5, 1.5, 1, 1.5))
 # Once a report's conditions have used every free colour, the colours repeat with these dashes.
 ROUND_DASHES = [(0, (8, 2)), (0, (0.6, 2)), (0, (3, 1, 1, 1, 1, 1)), (0, (2, 2)), (0, (6, 1, 1, 1, 1, 1, 1, 1)),

@@ -8,6 +8,7 @@ change. So the twin's runs pair with the agent's by seed, exactly, and per agent
   first): Δ = agent − own twin, the mean of the per-seed differences with a 95% percentile-bootstrap CI over the
   pairs (stats.paired_diff_ci), and P(> own twin) (rliable's probability of improvement [95% CI], as every other
   reference of the report); beside it Δ vs reset_all (PPO's fresh network, the study's reference until twins);
+* P(> own twin) over the same pairs' seeds;
 * segment 0: how many pairs flew it identically (equal AUC and end success). It should be all of them; a pair that
   differs ran other code or settings, and the report says so.
 
@@ -22,7 +23,8 @@ import pandas as pd
 
 from sweep.report import figures, stats
 from sweep.report.conditions import baseline_of
-from sweep.report.style import TWIN_SUFFIX
+from sweep.report.highlight import Highlight
+from sweep.config import TWIN_SUFFIX
 from sweep.report.tables import _identity, _ordered_groups, interval, markdown, provenance
 
 REFERENCE = "reset_all"   # a fresh plain PPO network at every change: PPO's own twin
@@ -33,14 +35,19 @@ def twin_agent(agent: str) -> str:
     return REFERENCE if agent == "ppo" else agent + TWIN_SUFFIX
 
 
+def _present(conds, conditions) -> pd.DataFrame:
+    """The rows of ``conds.table`` of the conditions that ran (in a wind)."""
+    return conds.table.loc[[c for c in conds.order if c in set(conditions)]]
+
+
 def twin_conditions(conds, runs: pd.DataFrame) -> dict[tuple[str, str], str]:
     """(wind, condition) -> its twin's condition (same --by values), for each condition whose twin ran in that wind."""
     out = {}
     for wind, g in runs.groupby("wind"):
-        table = conds.table.loc[[c for c in conds.order if c in set(g["condition"])]]
+        table = _present(conds, g["condition"])
         for cond in table.index:
             twin = baseline_of(table, cond, "agent", twin_agent(conds.agent(cond)))
-            if twin is not None and conds.agent(cond) != REFERENCE:
+            if twin is not None:
                 out[(wind, cond)] = twin
     return out
 
@@ -50,15 +57,23 @@ def _by_seed(df: pd.DataFrame, cond: str, column: str) -> pd.Series:
     return pd.Series(rows[column].to_numpy(dtype=float), index=rows["seed"].to_numpy())
 
 
+def _paired(mine: pd.Series, its: pd.Series) -> dict[str, float]:
+    """Δ = mine − its over the seeds both have [CI], their number, and P(mine > its) [CI] over the same seeds."""
+    d, lo, hi, n = stats.paired_diff_ci(mine, its)
+    both = pd.concat([mine.rename("x"), its.rename("y")], axis=1, join="inner").dropna()
+    p = stats.poi_ci(both["x"], both["y"]) if len(both) else (np.nan,) * 3
+    return {"delta": d, "low": lo, "high": hi, "pairs": n, "p": p[0], "p_low": p[1], "p_high": p[2]}
+
+
 def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> pd.DataFrame:
     """Per condition x wind x segment, for each agent of ``pairs`` and each twin: the AUC (seed mean, 95% Student-t
     half-width), and for the agent the paired Δ AUC vs its twin [CI], the pairs, P(> twin) [CI], and on segment 0
     ``same_pairs`` (pairs whose AUC and end success are equal)."""
     df = runs[["run_id", "wind", "condition", "seed"]].merge(seg, on="run_id")
-    drawn = {c for key, twin in pairs.items() for c in (key[1], twin)}
+    drawn = {(wind, c) for (wind, cond), twin in pairs.items() for c in (cond, twin)}
     rows = []
     for wind, cond, g in _ordered_groups(df, conds):
-        if cond not in drawn:
+        if (wind, cond) not in drawn:
             continue
         twin = pairs.get((wind, cond))
         theirs = df[(df["wind"] == wind) & (df["condition"] == twin)] if twin else df.iloc[0:0]
@@ -70,11 +85,10 @@ def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> 
             other = theirs[theirs["segment"] == k]
             if twin and len(other):
                 mine, its = _by_seed(s, cond, "auc"), _by_seed(other, twin, "auc")
-                d, lo, hi, n_pairs = stats.paired_diff_ci(mine, its)
-                p, p_lo, p_hi = stats.poi_ci(s["auc"], other["auc"])
-                row.update({"auc_vs_twin": d, "auc_vs_twin_low": lo, "auc_vs_twin_high": hi, "pairs": n_pairs,
-                            "p_improve_over_twin": p, "p_improve_over_twin_low": p_lo,
-                            "p_improve_over_twin_high": p_hi})
+                v = _paired(mine, its)
+                row.update({"auc_vs_twin": v["delta"], "auc_vs_twin_low": v["low"], "auc_vs_twin_high": v["high"],
+                            "pairs": v["pairs"], "p_improve_over_twin": v["p"],
+                            "p_improve_over_twin_low": v["p_low"], "p_improve_over_twin_high": v["p_high"]})
                 if k == 0:
                     ends = pd.concat([_by_seed(s, cond, "end"), _by_seed(other, twin, "end")], axis=1, join="inner")
                     aucs = pd.concat([mine, its], axis=1, join="inner")
@@ -91,15 +105,14 @@ def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: di
     rows = []
     for (wind, cond), twin in pairs.items():
         here = df[df["wind"] == wind]
-        mine, its = _by_seed(here, cond, "relearning"), _by_seed(here, twin, "relearning")
-        d, lo, hi, n = stats.paired_diff_ci(mine, its)
-        p = stats.poi_ci(mine, its)
-        ref = baseline_of(conds.table.loc[[c for c in conds.order if c in set(here["condition"])]], cond, "agent",
-                          REFERENCE)
-        r = stats.mean_diff_ci(mine, _by_seed(here, ref, "relearning")) if ref else (np.nan,) * 3
-        rows.append({**_identity(conds, cond, wind), "condition": cond, "twin": twin, "pairs": n,
-                     "relearning_vs_twin": d, "relearning_vs_twin_low": lo, "relearning_vs_twin_high": hi,
-                     "p_improve_over_twin": p[0], "p_improve_over_twin_low": p[1], "p_improve_over_twin_high": p[2],
+        v = _paired(_by_seed(here, cond, "relearning"), _by_seed(here, twin, "relearning"))
+        ref = baseline_of(_present(conds, here["condition"]), cond, "agent", REFERENCE)
+        r = (stats.mean_diff_ci(_by_seed(here, cond, "relearning"), _by_seed(here, ref, "relearning")) if ref
+             else (np.nan,) * 3)
+        rows.append({**_identity(conds, cond, wind), "condition": cond, "twin": twin, "pairs": v["pairs"],
+                     "relearning_vs_twin": v["delta"], "relearning_vs_twin_low": v["low"],
+                     "relearning_vs_twin_high": v["high"], "p_improve_over_twin": v["p"],
+                     "p_improve_over_twin_low": v["p_low"], "p_improve_over_twin_high": v["p_high"],
                      f"relearning_vs_{REFERENCE}": r[0], f"relearning_vs_{REFERENCE}_low": r[1],
                      f"relearning_vs_{REFERENCE}_high": r[2]})
     return pd.DataFrame(rows)
@@ -119,9 +132,11 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
         mine = per_segment[(per_segment["wind"] == wind) & (per_segment["condition"] == cond)]
         first = mine[mine["segment"] == 0]
         w = whole[(whole["wind"] == wind) & (whole["condition"] == cond)] if len(whole) else whole
-        row = {"Agent": cond, "Twin": twin, "Wind": wind, "Pairs": int(mine["pairs"].max()) if "pairs" in mine else 0,
-               "Segment 0 the same run (pairs)": (f"{int(first['same_pairs'].iloc[0])}/{int(first['pairs'].iloc[0])}"
-                                                  if len(first) and "same_pairs" in first else "–")}
+        pairs_seen = mine["pairs"].max() if "pairs" in mine else np.nan
+        same = first["same_pairs"].iloc[0] if len(first) and "same_pairs" in first else np.nan
+        row = {"Agent": cond, "Twin": twin, "Wind": wind, "Pairs": int(pairs_seen) if pd.notna(pairs_seen) else 0,
+               "Segment 0 the same run (pairs)": (f"{int(same)}/{int(first['pairs'].iloc[0])}" if pd.notna(same)
+                                                  else "–")}
         if len(w):
             v = w.iloc[0]
             row.update({
@@ -131,7 +146,7 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
                                                    v["p_improve_over_twin_high"], 2),
                 f"Δ vs {REFERENCE} (pp) [95% CI]": interval(*(100 * v[f"relearning_vs_{REFERENCE}{s}"]
                                                              for s in ("", "_low", "_high")), 0)})
-        for r in mine[mine["segment"] >= 1].itertuples():
+        for r in mine[mine["segment"] >= 1].itertuples() if "auc_vs_twin" in mine else []:
             row[f"segment {r.segment}: Δ (pp)"] = interval(100 * r.auc_vs_twin, 100 * r.auc_vs_twin_low,
                                                             100 * r.auc_vs_twin_high, 0)
         display.append(row)
@@ -145,8 +160,11 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
             f"probability of improvement [95% bootstrap CI]; Δ vs {REFERENCE} as in relearning.md (unpaired).\n\n"
             + markdown(pd.DataFrame(display).fillna("–")))
     (out / "twins.md").write_text(text)
+    coloured = {}   # every agent and twin of the figure in colour, however many agents the report has
+    for (wind, cond), twin in pairs.items():
+        coloured.setdefault(wind, set()).update({conds.agent(cond), conds.agent(twin)})
     return [out / "twins.csv", out / "twins.md"] + figures.segment_scores(
         per_segment.assign(**{c: per_segment.get(c, np.nan) for c in ("auc_vs_twin", "auc_vs_twin_low",
                                                                       "auc_vs_twin_high")}),
-        conds, shown, out, reference="twin", name="twins", runs_shown="seeds (agents and their fresh twins)",
+        conds, Highlight(shown.rank, coloured, shown.top), out, reference="twin", name="twins", runs_shown="seeds (agents and their fresh twins)",
         diff_label="AUC − its own fresh twin's\n(points, paired by seed)")
