@@ -10,6 +10,7 @@
 #   docs/reliability/run.sh sac-anchor     # SAC (JAX) with td3-anchor's settings (replay ratio, inputs, bonus, curriculum)
 #   docs/reliability/run.sh hover-heldout  # experiment=hover itself on seeds 16-31 (experiment reliability-heldout): the
 #                                          # preset, chosen on seeds 0-15, confirmed on seeds that chose nothing
+#   docs/reliability/run.sh paper-heldout  # ppo-paper on seeds 16-31 beside it (its 3M tie with the preset, on new seeds)
 #   docs/reliability/run.sh rows           # the rows above in that order (what a session resumes)
 #   docs/reliability/run.sh stop           # pause: stop the running row and its jobs (they resume from their checkpoints)
 #   docs/reliability/run.sh report         # the table and figure -> docs/reliability/main (held-out: .../heldout)
@@ -69,7 +70,10 @@ case ${1:-} in
   sac-anchor)     sweep sac-anchor "${SAC[@]}" "${CURRICULUM[@]}" "${ANCHOR_INPUTS[@]}" ;;
   hover-heldout)  PRESET=hover SEEDS=${SEEDS:-16,17,18,19,20,21,22,23,24,25,26,27,28,29,30,31} \
                     sweep hover-heldout tracking.experiment=reliability-heldout ;;
-  rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper sac-anchor hover-heldout; do "$0" "$row"; done ;;
+  paper-heldout)  SEEDS=${SEEDS:-16,17,18,19,20,21,22,23,24,25,26,27,28,29,30,31} \
+                    ppo paper-heldout agent=ppo agent.learner=jax tracking.experiment=reliability-heldout ;;
+  rows)           for row in ppo-13d ppo-obs td3-anchor ppo-curriculum ppo-paper sac-anchor hover-heldout paper-heldout; do
+                    "$0" "$row"; done ;;
   stop)           drivers=$(pgrep -f "reliability/run.sh" | grep -v $$ || true)
                   sweeps=$(pgrep -f "hydra.sweep.dir=$STUDY/multirun/" || true)
                   workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
