@@ -11,6 +11,10 @@
 #   docs/plasticity_study/run.sh combo-flip      # seeds 0-7 of the combination added after the pilot (COMBO)
 #   docs/plasticity_study/run.sh combo-payload   # the same under vehicle=payload
 #   docs/plasticity_study/run.sh main            # the six phases, the flip change's three first (what a session resumes)
+#   docs/plasticity_study/run.sh twins-flip      # issue 56: the fresh twins of the headline agents (TWINNED), seeds 0-15,
+#   docs/plasticity_study/run.sh twins-payload   #   at their continual runs' code; twins.md pairs each with its continual run
+#   docs/plasticity_study/run.sh more-flip       # seeds 8-15 of the continual agents that have 8 (relative RECOM at
+#   docs/plasticity_study/run.sh more-payload    #   MAIN_COMMIT, the combination at COMBO_COMMIT), so every pair has 16
 #   docs/plasticity_study/run.sh stop            # pause: stop the running phase and its jobs (they resume from their checkpoints)
 #   docs/plasticity_study/run.sh report          # the main phases' tables, figures, decline.md, weight_norm.md -> docs/plasticity_study/main
 #   docs/plasticity_study/run.sh report flip     # the same for one change's phases only -> docs/plasticity_study/flip
@@ -42,6 +46,15 @@ COMBO_COMMIT=be84f2b
 COMBO=layer_norm_l2_lr_decay_8m
 # seeds 8-15: PPO, reset_all and the three agents the pilot ranked highest (docs/plasticity_study.md, The pilot)
 AGENTS_EXTRA=${AGENTS_EXTRA:-ppo,reset_all,layer_norm,l2_lr_decay_8m,l2_lr_decay}
+# issue 56: each headline agent against its own fresh twin, paired by seed with its archived continual run. A twin
+# must fly segment 0 as that run did, bit for bit, so it runs the continual run's code (MAIN_COMMIT, COMBO_COMMIT for
+# the combination), not today's: measured 12-07, today's code (7e63a95) flies the first rollout of layer_norm under
+# the flip, seed 0, to a mean return of -934.6388080162661, MAIN_COMMIT (and the archive) to -934.6388079822063, and
+# the runs part from there. Those commits predate twin=fresh, so the twin is composed as twin=fresh composes it: the
+# reset_all remedy switched on (every agent carries it there, off), named <agent>_fresh, labelled "<label> (fresh)".
+# twins.md's "Segment 0 the same run" column checks the pairing on every pair.
+TWINNED=layer_norm,layer_norm_l2_lr_decay_8m,l2_lr_decay,l2_lr_decay_8m,recom_l2_relative
+SEEDS16=0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/plasticity_study/runs
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
@@ -69,6 +82,15 @@ sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's sto
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=plasticity train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
 }
+twins() {  # twins CHANGE CHANGE_OVERRIDES...: each TWINNED agent's fresh twin, seeds 0-15 (SEEDS), at its continual code
+  local change=$1 agent commit label; shift
+  for agent in ${TWINNED//,/ }; do
+    commit=$MAIN_COMMIT; [ "$agent" != "$COMBO" ] || commit=$COMBO_COMMIT
+    label=$(git -C "$ROOT" show "$commit:conf/agent/$agent.yaml" | sed -n 's/^label: //p')
+    sweep "$commit" "twins-$agent-$change" "$@" "seed=${SEEDS:-$SEEDS16}" "agent=$agent" \
+      agent.reset_all.enabled=true "agent.name=${agent}_fresh" "agent.label='$label (fresh)'"
+  done
+}
 PILOT=(wind.segment_steps=4000000 train.total_timesteps=12000000 seed=0,1,2 tracking.experiment=plasticity-pilot)
 
 case ${1:-} in
@@ -82,10 +104,18 @@ case ${1:-} in
   combo-flip)    sweep $COMBO_COMMIT combo-flip wind=flip "seed=${SEEDS:-0,1,2,3,4,5,6,7}" "agent=$COMBO" ;;
   combo-payload) sweep $COMBO_COMMIT combo-payload wind=none vehicle=payload "seed=${SEEDS:-0,1,2,3,4,5,6,7}" \
                    "agent=$COMBO" ;;
+  twins-flip)    twins flip wind=flip ;;
+  twins-payload) twins payload wind=none vehicle=payload ;;
+  more-flip)     sweep $MAIN_COMMIT more-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" agent=recom_l2_relative
+                 sweep $COMBO_COMMIT more-combo-flip wind=flip "seed=${SEEDS:-8,9,10,11,12,13,14,15}" "agent=$COMBO" ;;
+  more-payload)  sweep $MAIN_COMMIT more-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
+                   agent=recom_l2_relative
+                 sweep $COMBO_COMMIT more-combo-payload wind=none vehicle=payload "seed=${SEEDS:-8,9,10,11,12,13,14,15}" \
+                   "agent=$COMBO" ;;
   main)          for phase in main-flip extra-flip combo-flip main-payload extra-payload combo-payload; do  # one change complete first
                    SEEDS= "$0" "$phase"   # each phase its own seeds (SEEDS=... is for one phase)
                  done ;;
-  stop)          drivers=$(pgrep -f "plasticity_study/run.sh (main|pilot-|extra-|combo-)" || true)
+  stop)          drivers=$(pgrep -f "plasticity_study/run.sh (main|pilot-|extra-|combo-|twins-|more-)" || true)
                  sweeps=$(pgrep -f "sweep -m experiment=plasticity" || true)
                  workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)   # the jobs: joblib's worker processes
                  [ -n "$drivers$sweeps" ] || { echo "no phase is running"; exit 0; }
@@ -106,5 +136,5 @@ case ${1:-} in
                    (cd "$STUDY" && "$PY" -m sweep.archive export --experiment "$exp" --out "$ARCHIVE/$exp") || true
                  done ;;
   import)        for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,18p "$0"; exit 2 ;;
+  *) sed -n 2,22p "$0"; exit 2 ;;
 esac
