@@ -87,3 +87,21 @@ def test_no_twins_no_twin_files(tmp_path):
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
     assert code == 0, stdout + stderr
     assert not (tmp_path / "out" / "twins.md").exists() and (tmp_path / "out" / "segment_scores.md").exists()
+
+
+def test_a_failed_twin_job_is_filed_under_the_twins_name(tmp_path):
+    """A twin job that ended FAILED without a run is reported as <agent>_fresh, its agent's as the agent."""
+    import yaml
+
+    from sweep.report.load import unrun_jobs
+    from sweep.status import write_status
+
+    for num, twin in ((0, None), (1, "fresh")):
+        job = tmp_path / "sweep" / str(num)
+        (job / ".hydra").mkdir(parents=True)
+        agent = {"name": "layer_norm", "label": "LayerNorm PPO", **({"twin": twin} if twin else {})}
+        (job / ".hydra" / "config.yaml").write_text(yaml.safe_dump(
+            {"agent": agent, "wind": {"name": "flip"}, "seed": 3, "tracking": {"experiment": "twins"}}))
+        write_status(job, "FAILED", reason="killed")
+    cells = unrun_jobs([str(tmp_path / "sweep")], set(), "twins")
+    assert [c["agent"] for c in cells] == ["layer_norm", "layer_norm_fresh"] and {c["seed"] for c in cells} == {3}
