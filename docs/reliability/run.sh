@@ -39,7 +39,7 @@ export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
 mkdir -p "$STUDY"
 
 sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and checkpoints; output under $STUDY
-  local commit code name=$1; shift
+  local commit code status=0 name=$1; shift
   commit=$(git -C "$ROOT" rev-parse --short "$MAIN_COMMIT")
   code=$STUDY/code-$commit
   [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
@@ -49,7 +49,7 @@ sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and 
      hydra.sweep.dir="$STUDY/multirun/$name${WIND:+-wind$WIND}" "seed=${SEEDS:-0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15}" \
      "${wind[@]}" "$@" ${BUDGET:+"train.total_timesteps=$BUDGET"}) || status=$?
   prune
-  return ${status:-0}
+  return $status
 }
 prune() {  # a FINISHED job is skipped on resume, so its last checkpoint is dead weight: an off-policy run's is its replay
            # buffer (1.2 GB at 1M steps of the 145-column observation; 16 of them filled this disk on 12-07)
