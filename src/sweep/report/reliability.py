@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -133,21 +134,23 @@ def share_curve(histories: pd.DataFrame, runs: pd.DataFrame, threshold: float = 
 
 def figure(histories: pd.DataFrame, runs: pd.DataFrame, rows: list[str], out: Path) -> Path:
     style.apply()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    labels = {name: textwrap.fill(f"{name} (n={int((runs['row'] == name).sum())})", 120, subsequent_indent="    ")
+              for name in rows}   # below the axes, one per line however long the rows' names are
+    lines = sum(label.count("\n") + 1 for label in labels.values())
+    fig, ax = plt.subplots(figsize=(7.5, 3.6 + 0.16 * lines), layout="constrained")
     colours = plt.get_cmap("tab10" if len(rows) <= 10 else "tab20")
     for i, name in enumerate(rows):
         steps, share, lo, hi = share_curve(histories, runs[runs["row"] == name])
         colour = colours(i % colours.N)
-        ax.plot(steps, 100 * share, color=colour, label=f"{name} (n={int((runs['row'] == name).sum())})", lw=1.6)
+        ax.plot(steps, 100 * share, color=colour, label=labels[name], lw=1.6)
         ax.fill_between(steps, 100 * lo, 100 * hi, color=colour, alpha=0.15, lw=0)
     ax.set_xlabel("env steps")
     ax.set_ylabel("seeds hovering (eval success ≥ 50%), %")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", frameon=False)
+    fig.legend(fontsize=6, loc="outside lower center", frameon=False, ncol=1)
     ax.set_title("Share of seeds hovering, with Wilson 95% bands", fontsize=10)
     path = out / "hovering.png"
-    fig.tight_layout()
     fig.savefig(path, dpi=150)
     plt.close(fig)
     return path
