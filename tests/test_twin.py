@@ -79,8 +79,9 @@ RUN = ["seed=3", "train.total_timesteps=2048", "wind.segment_steps=768", "eval.e
 
 @pytest.mark.parametrize("agent,overrides", [
     ("layer_norm", ["agent.ppo.n_steps=512", "agent.ppo.n_epochs=2"]),
-    ("sac_reset", ["agent.sac.round_steps=512", "agent.sac.learning_starts=300", "agent.sac.batch_size=32",
-                   "agent.policy.net_arch=[16,16]", "agent.periodic_reset.every_steps=1280"]),
+    pytest.param("sac_reset", ["agent.sac.round_steps=512", "agent.sac.learning_starts=300", "agent.sac.batch_size=32",
+                   "agent.policy.net_arch=[16,16]", "agent.periodic_reset.every_steps=1280"],
+                 marks=pytest.mark.slow),   # ResetAll on SAC is in the default suite (test_offpolicy); this runs a twin
 ])
 def test_a_twin_shares_segment_0_with_its_agent_bit_for_bit_then_draws_fresh_networks(agent, overrides, store,
                                                                                      tmp_path):
