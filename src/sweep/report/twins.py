@@ -6,9 +6,9 @@ change. So the twin's runs pair with the agent's by seed, exactly, and per agent
 
 * per segment k >= 1, and for the re-learning AUC (relearning.per_run: the mean AUC over the segments after the
   first): Δ = agent − own twin, the mean of the per-seed differences with a 95% percentile-bootstrap CI over the
-  pairs (stats.paired_diff_ci), and P(> own twin) (rliable's probability of improvement [95% CI], as every other
-  reference of the report); beside it Δ vs reset_all (PPO's fresh network, the study's reference until twins);
-* P(> own twin) over the same pairs' seeds;
+  pairs (stats.paired_diff_ci), and P(> own twin) over the same seeds (rliable's probability of improvement [95%
+  CI], as every other reference of the report); beside it Δ vs reset_all (PPO's fresh network, the study's reference
+  until twins);
 * segment 0: how many pairs flew it identically (equal AUC and end success). It should be all of them; a pair that
   differs ran other code or settings, and the report says so.
 
@@ -21,10 +21,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from sweep.config import TWIN_SUFFIX
 from sweep.report import figures, stats
 from sweep.report.conditions import baseline_of
 from sweep.report.highlight import Highlight
-from sweep.config import TWIN_SUFFIX
 from sweep.report.tables import _identity, _ordered_groups, interval, markdown, provenance
 
 REFERENCE = "reset_all"   # a fresh plain PPO network at every change: PPO's own twin
