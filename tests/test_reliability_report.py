@@ -103,3 +103,13 @@ def test_the_share_hovering_counts_a_seed_between_its_first_and_last_evaluation(
 def test_an_unknown_experiment_is_one_line(store, tmp_path):
     code, _, err = run(store, tmp_path, "--experiment", "nope")
     assert code == 2 and err.count("\n") == 1 and "nope" in err
+
+
+def test_seeds_limits_the_table_to_the_seeds_named(store, tmp_path):
+    assert reliability.seed_list("0-2,8") == [0, 1, 2, 8]
+    code, out, _ = run(store, tmp_path, "--experiment", "rel", "--by", "env.observe.action_history", "--seeds", "0,2-3")
+    assert code == 0 and "4 finished runs, 2 rows" in out   # A's s0, s2, s3 and B's s0
+    a = pd.read_csv(tmp_path / "reliability.csv").set_index(["row", "threshold"])
+    assert a.loc[("TD3 [jax, none] observe.action_history=0", 0.5), "n_300k"] == 3
+    code, _, err = run(store, tmp_path, "--experiment", "rel", "--seeds", "50-60")
+    assert code == 2 and "no finished runs of those seeds" in err

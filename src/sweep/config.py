@@ -39,6 +39,7 @@ def choice(name: str, *values: str) -> type[Enum]:
 
 Observation = choice("Observation", "quaternion", "euler")
 TimeLimit = choice("TimeLimit", "truncate", "terminate")
+ActionReference = choice("ActionReference", "zero", "hover")
 AfterList = choice("AfterList", "repeat", "hold")
 Activation = choice("Activation", "tanh", "relu")
 LRSchedule = choice("LRSchedule", "constant", "linear", "cosine")
@@ -95,6 +96,9 @@ class Reward:
     w_a: float = non_negative()
     alive_bonus: float = non_negative()
     crash_reward: Optional[float] = key(lambda v: v is None or _finite(v), "a number or null (no replacement)")
+    power: int = key(lambda v: v in (1, 2), "1 (norms, Eqs. 3-4) or 2 (squared norms)")
+    w_q: float = non_negative(" (attitude cost on 1 - q_w^2)")
+    action_reference: ActionReference = MISSING
 
 
 @dataclass
@@ -148,6 +152,8 @@ class Env:
     episode_seconds: float = positive(" (s)")
     start_bound: float = non_negative(" (m)")
     world_bound: float = positive(" (m)")
+    terminate_radius: Optional[float] = key(lambda v: v is None or (_finite(v) and v > 0),
+                                            "a number > 0 (m) or null (no such bound)")
     motor_time_constant: float = positive(" (s)")
     observation: Observation = MISSING
     observation_scale: ObservationScale = field(default_factory=ObservationScale)
@@ -380,15 +386,24 @@ ENV_AS_BEFORE: dict[str, Callable[[dict], bool]] = {
                                                      "critic_condition")),
     "start": lambda b: not any(b.get(k) for k in ("tilt_deg", "velocity", "body_rate")),
     "curriculum": lambda b: b.get("start_bound_from") is None,
+    "terminate_radius": lambda v: v is None,
+}
+# Keys added to an env block since, with the value that means "as before": dropped from the block when they hold it.
+ENV_KEYS_AS_BEFORE: dict[str, dict[str, Any]] = {
+    "reward": {"power": 1, "w_q": 0.0, "action_reference": "zero"},
 }
 
 
 def drop_as_before(env: dict) -> dict:
-    """Remove from a resolved ``env`` block (the run's, or a hook's copy of it) the ENV_AS_BEFORE blocks that mean
-    "as before"; returns it."""
+    """Remove from a resolved ``env`` block (the run's, or a hook's copy of it) the ENV_AS_BEFORE blocks and keys, and
+    the ENV_KEYS_AS_BEFORE keys of a block, that mean "as before"; returns it."""
     for name, unchanged in ENV_AS_BEFORE.items():
-        if isinstance(env.get(name), dict) and unchanged(env[name]):
+        if name in env and unchanged(env[name]):
             env.pop(name)
+    for block, defaults in ENV_KEYS_AS_BEFORE.items():
+        for name, value in defaults.items():
+            if isinstance(env.get(block), dict) and name in env[block] and env[block][name] == value:
+                env[block].pop(name)
     return env
 
 

@@ -15,7 +15,8 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
              vehicle: VehicleSchedule | None = None) -> HoverVecEnv:
     """The hover env of ``env_cfg`` with ``n_envs`` vehicles on the backend ``env.backend`` names among
     ``env.backends``, under ``wind`` and ``vehicle`` (None: nominal); the reward it returns is scaled by
-    ``env.reward_scale``, and its starts follow ``env.start`` and ``env.curriculum``, only for a learner
+    ``env.reward_scale``, its starts follow ``env.start`` and ``env.curriculum`` and it ends episodes beyond
+    ``env.terminate_radius``, only for a learner
     (``learning=True``): evaluations score every agent on the same task, the paper's reward and starts (+-``env.start_bound``,
     level, at rest)."""
     return HoverVecEnv(
@@ -23,6 +24,7 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
         reward=HoverReward(**env_cfg.reward),
         sim_rate=env_cfg.sim_rate, episode_seconds=env_cfg.episode_seconds, start_bound=env_cfg.start_bound,
         world_bound=env_cfg.world_bound, motor_time_constant=env_cfg.motor_time_constant,
+        terminate_radius=env_cfg.get("terminate_radius") if learning else None,
         observation=env_cfg.observation, time_limit=env_cfg.time_limit,
         observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
         observe=dict(env_cfg.get("observe") or {}),

@@ -25,7 +25,9 @@
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode (``action_to_rotor_speed``; its inverse ``rotor_speed_to_action``).
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
-  RotorPy's gym env). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100).
+  RotorPy's gym env). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
+  ``terminate_radius`` m from the target (None: no such bound; "Learning to Fly in Seconds" ends at 0.6 m), a crash
+  like leaving the bounds.
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
   own terminal observation, so SB3 bootstraps each env from its own last state; ``"terminate"`` ends
   it as a termination (no bootstrap), as RotorPy's gym env before 3.0 did.
@@ -93,6 +95,7 @@ class Task(NamedTuple):
     velocity_scale: float     # observation_scale
     body_rate_scale: float
     reward: RewardWeights
+    terminate_radius: float   # m from the target (inf: none)
     rotor_speeds: bool        # observe.rotor_speeds
     speed_min: float          # rad/s: the action -1 ...
     speed_max: float          # ... and +1
@@ -165,12 +168,14 @@ def task_outcome(vehicles, actions, t_idx, task, obs, outcome, history, wind, ve
     world_bound, terminate_at_limit, v_scale, w_scale = (task.world_bound, task.terminate_at_limit,
                                                          task.velocity_scale, task.body_rate_scale)
     episode_steps, euler, weights = task.episode_steps, task.euler, task.reward  # fields read once, not per vehicle
+    radius2 = task.terminate_radius * task.terminate_radius
     for i in range(x.shape[0]):
         t_idx[i] += 1
         out = False
         for a in range(3):
             out = out or abs(x[i, a]) > world_bound or abs(v[i, a]) > SAFE_SPEED or abs(w[i, a]) > SAFE_RATE
-        rewards[i] = step_reward(x[i], v[i], actions[i], out, weights)
+        out = out or x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + x[i, 2] * x[i, 2] > radius2
+        rewards[i] = step_reward(x[i], v[i], actions[i], q[i, 3], out, weights)
         at_limit = t_idx[i] >= episode_steps and not out
         crashed[i] = out
         terminated[i] = out or (at_limit and terminate_at_limit)
@@ -243,6 +248,7 @@ class HoverVecEnv(VecEnv):
         episode_seconds: float = 5.0,
         start_bound: float = 2.0,
         world_bound: float = 4.0,
+        terminate_radius: float | None = None,
         motor_time_constant: float | None = 0.05,
         observation: str = "quaternion",
         time_limit: str = "truncate",
@@ -265,6 +271,7 @@ class HoverVecEnv(VecEnv):
         self.episode_steps = int(round(episode_seconds * sim_rate))
         self.start_bound = float(start_bound)
         self.world_bound = float(world_bound)
+        self.terminate_radius = math.inf if terminate_radius is None else float(terminate_radius)
         self.observation = observation
         self.wind = wind or WindSchedule()
         self.vehicle = vehicle or VehicleSchedule()
@@ -321,7 +328,8 @@ class HoverVecEnv(VecEnv):
         self._task = Task(episode_steps=self.episode_steps, world_bound=self.world_bound,
                           terminate_at_limit=time_limit == "terminate", euler=observation == "euler",
                           velocity_scale=self.velocity_scale, body_rate_scale=self.body_rate_scale,
-                          reward=self.reward_fn.weights, rotor_speeds=self.observe_rotor_speeds,
+                          reward=self.reward_fn.weights(self.hover_action), terminate_radius=self.terminate_radius,
+                          rotor_speeds=self.observe_rotor_speeds,
                           speed_min=self.speed_min, speed_max=self.speed_max,
                           critic_rotor_speeds=self.critic_rotor_speeds, critic_condition=self.critic_condition)
 

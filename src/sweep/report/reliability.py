@@ -167,13 +167,24 @@ def row_names(runs: pd.DataFrame, by: list[str]) -> pd.Series:
     return runs.apply(name, axis=1)
 
 
-def report(experiment: str, by: list[str], out: Path, sweep: str | None = None) -> str:
+def seed_list(text: str) -> list[int]:
+    """``--seeds`` "0-15,100": the seeds it names (ranges inclusive)."""
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        low, _, high = part.partition("-")
+        seeds.extend(range(int(low), int(high or low) + 1))
+    return seeds
+
+
+def report(experiment: str, by: list[str], out: Path, sweep: str | None = None, seeds: list[int] | None = None) -> str:
     client = load.client_for(load.tracking_uri())
     exp_id, exp_name = load.pick_experiment(client, experiment)
     loaded = load.read_runs(client, exp_id, sweep, [*by, EVERY] if EVERY not in by else by, experiment=exp_name)
     runs = loaded.runs
+    if seeds is not None:   # e.g. a pilot's seeds, or the seeds held out from it
+        runs = runs[runs["seed"].astype(int).isin(seeds)]
     if runs.empty:
-        raise load.ReportError(f"experiment {exp_name!r}: no finished runs")
+        raise load.ReportError(f"experiment {exp_name!r}: no finished runs" + (" of those seeds" if seeds else ""))
     runs = runs.assign(row=row_names(runs, by))
     rows = list(dict.fromkeys(runs.sort_values(["agent", "learner", "wind", *by])["row"]))
     histories = on_schedule(load.load_histories(client, runs, [SUCCESS], timestamps=True), runs)
@@ -196,11 +207,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--by", metavar="KEY[,KEY...]", type=lambda s: [k for k in s.split(",") if k], default=[],
                         help="logged params that, with agent, learner and wind, make a row")
     parser.add_argument("--sweep", help="only runs of this sweep (its directory, or a substring of the 'sweep' tag)")
+    parser.add_argument("--seeds", type=seed_list, metavar="LIST", help="only these seeds, e.g. 0-15 or 100,101")
     parser.add_argument("--out", help="output folder (default: reports/<experiment>/reliability/)")
     args = parser.parse_args(argv)
     out = Path(args.out) if args.out else Path("reports") / args.experiment / "reliability"
     try:
-        print(report(args.experiment, args.by, out, args.sweep))
+        print(report(args.experiment, args.by, out, args.sweep, args.seeds))
     except load.ReportError as err:
         print(f"sweep.report.reliability: {err}", file=sys.stderr)
         return 2
