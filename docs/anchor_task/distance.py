@@ -1,0 +1,38 @@
+"""Where the anchor task's seeds end: per row, each seed's last evaluation's mean final distance to the target (m) and
+crash share, and how many seeds end within 0.1, 0.2 and 0.3 m without a crash.
+
+    MLFLOW_TRACKING_URI=sqlite:////work/studies/anchor/mlflow.db python docs/anchor_task/distance.py 0-15 [KEY,...]
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from mlflow.tracking import MlflowClient
+
+from sweep.report import load
+from sweep.report.reliability import seed_list
+
+
+def main(seeds: list[int], by: list[str]) -> str:
+    client = MlflowClient(load.tracking_uri())
+    exp_id, _ = load.pick_experiment(client, "anchor-task")
+    runs = load.read_runs(client, exp_id, by=by).runs
+    runs = runs[runs["seed"].astype(int).isin(seeds)]
+    lines = ["| row | seeds | final distance, median (range) | within 0.1 / 0.2 / 0.3 m | crashed at the last evaluation |",
+             "|---|---|---|---|---|"]
+    for key, group in runs.groupby(by or (lambda _: "")):
+        last = {}
+        for metric in ("eval/final_distance", "eval/crash_rate"):
+            last[metric] = np.array([max(client.get_metric_history(r, metric), key=lambda m: m.step).value
+                                     for r in group["run_id"]])
+        d, crashed = last["eval/final_distance"], last["eval/crash_rate"] > 0
+        within = " / ".join(str(int(((d <= r) & ~crashed).sum())) for r in (0.1, 0.2, 0.3))
+        name = ", ".join(f"{k.split('.')[-1]}={v}" for k, v in zip(by, key if isinstance(key, tuple) else (key,)))
+        lines.append(f"| {name or 'preset'} | {len(d)} | {np.median(d):.2f} ({d.min():.2f}–{d.max():.2f}) | {within} | "
+                     f"{int(crashed.sum())} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(main(seed_list(sys.argv[1]), [k for k in (sys.argv[2] if len(sys.argv) > 2 else "").split(",") if k]))
