@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from omegaconf import open_dict
 from stable_baselines3.common.utils import configure_logger
 
 from conftest import compose_cfg
@@ -70,6 +71,23 @@ def test_the_radius_ends_a_training_episode_as_a_crash_and_evaluations_keep_the_
     assert not dones.any()
 
 
+def test_the_env_rewards_each_step_with_its_attitude_and_the_hover_command():
+    """HoverVecEnv.step's reward under the preset's weights squared is the formula on the state it returns: its
+    attitude's q_w (observation column 9) and the nominal hover command, for tilted and yawed starts."""
+    cfg = compose_cfg(ANCHOR + ["env.reward.power=2"])
+    env = make_env(cfg.env, 16, wind_schedule(cfg.wind), 3, learning=True)
+    obs = env.reset()
+    assert (np.abs(obs[:, 9]) < 0.99).any()   # the starts are tilted up to 90 deg
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        actions = np.clip(env.hover_action + rng.normal(0, 0.3, (16, 4)), -1, 1).astype(np.float32)
+        obs, rewards, dones, infos = env.step(actions)
+        state = np.array([infos[i]["terminal_observation"] if dones[i] else obs[i] for i in range(16)])
+        expected = anchor_formula(state[:, :3].astype(float), state[:, 3:6].astype(float), actions.astype(float),
+                                  state[:, 9].astype(float), env.hover_action)
+        np.testing.assert_allclose(rewards, expected, rtol=1e-5, atol=1e-5)
+
+
 @pytest.mark.parametrize("algorithm", ["ppo", "td3"])
 def test_the_compiled_collects_step_the_anchor_task_as_the_env_does(algorithm):
     """The JAX learners' numba collects (PPO's rollout, TD3's replay collect) write the transitions HoverVecEnv.step
@@ -127,15 +145,20 @@ def test_td3_trains_on_the_anchor_task_on_both_learners(learner):
 
 def test_the_options_switched_off_move_no_job_key_and_bad_values_are_one_line():
     base = compose_cfg([])
-    off = compose_cfg(["env.reward.power=1", "env.reward.w_q=0", "env.reward.action_reference=zero",
-                       "env.terminate_radius=null"])
-    assert job_key(base, "sqlite:///x.db") == job_key(off, "sqlite:///x.db")
+    before = compose_cfg([])   # the config as it was before the options existed
+    with open_dict(before):
+        for block, name in (("reward", "power"), ("reward", "w_q"), ("reward", "action_reference"),
+                            (None, "terminate_radius")):
+            del (before.env[block] if block else before.env)[name]
+    assert "power" not in before.env.reward and "terminate_radius" not in before.env
+    assert job_key(base, "sqlite:///x.db") == job_key(before, "sqlite:///x.db")
     for override in ("env.reward.power=2", "env.reward.w_q=1", "env.reward.action_reference=hover",
                      "env.terminate_radius=0.6"):
         assert job_key(compose_cfg([override]), "sqlite:///x.db") != job_key(base, "sqlite:///x.db")
     for override, message in [("env.reward.power=3", "env.reward.power=3: must be 1 (norms"),
                               ("env.terminate_radius=0", "env.terminate_radius=0"),
-                              ("env.reward.w_q=-1", "env.reward.w_q=-1")]:
+                              ("env.reward.w_q=-1", "env.reward.w_q=-1"),
+                              ("env.terminate_radius=3", "env.terminate_radius=3: must be > 3.46 m, the farthest start")]:
         with pytest.raises(ConfigError) as error:
             validate(compose_cfg([override]))
         assert one_line(error.value).startswith(message)

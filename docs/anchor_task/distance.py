@@ -1,5 +1,6 @@
 """Where the anchor task's seeds end: per row, each seed's last evaluation's mean final distance to the target (m) and
-crash share, and how many seeds end within 0.1, 0.2 and 0.3 m without a crash.
+crash share, and how many seeds end within 0.1, 0.2 and 0.3 m without a crash. The last evaluation is the one logged
+last: at the end of a run two are logged at the last step (the periodic one, then the end's), and this takes the end's.
 
     MLFLOW_TRACKING_URI=sqlite:////work/studies/anchor/mlflow.db python docs/anchor_task/distance.py 0-15 [KEY,...]
 """
@@ -24,7 +25,7 @@ def main(seeds: list[int], by: list[str]) -> str:
     for key, group in runs.groupby(by or (lambda _: "")):
         last = {}
         for metric in ("eval/final_distance", "eval/crash_rate"):
-            last[metric] = np.array([max(client.get_metric_history(r, metric), key=lambda m: m.step).value
+            last[metric] = np.array([max(client.get_metric_history(r, metric), key=lambda m: (m.step, m.timestamp)).value
                                      for r in group["run_id"]])
         d, crashed = last["eval/final_distance"], last["eval/crash_rate"] > 0
         within = " / ".join(str(int(((d <= r) & ~crashed).sum())) for r in (0.1, 0.2, 0.3))

@@ -386,21 +386,25 @@ ENV_AS_BEFORE: dict[str, Callable[[dict], bool]] = {
                                                      "critic_condition")),
     "start": lambda b: not any(b.get(k) for k in ("tilt_deg", "velocity", "body_rate")),
     "curriculum": lambda b: b.get("start_bound_from") is None,
-    "terminate_radius": lambda v: v is None,
 }
-# Keys added to an env block since, with the value that means "as before": dropped from the block when they hold it.
+# Env keys added since, with the value that means "as before": dropped when they hold it. Top-level keys under "",
+# a block's keys under its name.
 ENV_KEYS_AS_BEFORE: dict[str, dict[str, Any]] = {
+    "": {"terminate_radius": None},
     "reward": {"power": 1, "w_q": 0.0, "action_reference": "zero"},
 }
 
 
 def drop_as_before(env: dict) -> dict:
-    """Remove from a resolved ``env`` block (the run's, or a hook's copy of it) the ENV_AS_BEFORE blocks and keys, and
-    the ENV_KEYS_AS_BEFORE keys of a block, that mean "as before"; returns it."""
+    """Remove from a resolved ``env`` block (the run's, or a hook's copy of it) the ENV_AS_BEFORE blocks and the
+    ENV_KEYS_AS_BEFORE keys that mean "as before"; returns it."""
     for name, unchanged in ENV_AS_BEFORE.items():
-        if name in env and unchanged(env[name]):
+        if isinstance(env.get(name), dict) and unchanged(env[name]):
             env.pop(name)
-    for block, defaults in ENV_KEYS_AS_BEFORE.items():
+    for name, value in ENV_KEYS_AS_BEFORE[""].items():
+        if name in env and env[name] == value:
+            env.pop(name)
+    for block, defaults in [(b, d) for b, d in ENV_KEYS_AS_BEFORE.items() if b]:
         for name, value in defaults.items():
             if isinstance(env.get(block), dict) and name in env[block] and env[block][name] == value:
                 env[block].pop(name)
@@ -751,6 +755,10 @@ def _cross_rules(c: DictConfig) -> None:
     if c.env.curriculum.start_bound_from is not None and c.env.curriculum.start_bound_from > c.env.start_bound:
         raise ConfigError(f"env.curriculum.start_bound_from={c.env.curriculum.start_bound_from:g}: must be <= "
                           f"env.start_bound={c.env.start_bound:g} (the curriculum widens the start box to it)")
+    radius, farthest = c.env.terminate_radius, c.env.start_bound * math.sqrt(3)
+    if radius is not None and radius <= farthest:
+        raise ConfigError(f"env.terminate_radius={radius:g}: must be > {farthest:.3g} m, the farthest start "
+                          f"(env.start_bound={c.env.start_bound:g} x sqrt 3); a start beyond it would end at once")
     if c.env.backend not in c.env.backends:
         raise ConfigError(f"env.backend={c.env.backend!r}: must be one of {'|'.join(c.env.backends)} (conf/backend/)")
     if a.learner not in a.learners:

@@ -17,8 +17,8 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
     ``env.backends``, under ``wind`` and ``vehicle`` (None: nominal); the reward it returns is scaled by
     ``env.reward_scale``, its starts follow ``env.start`` and ``env.curriculum`` and it ends episodes beyond
     ``env.terminate_radius``, only for a learner
-    (``learning=True``): evaluations score every agent on the same task, the paper's reward and starts (+-``env.start_bound``,
-    level, at rest)."""
+    (``learning=True``): evaluations score every agent on the same starts (+-``env.start_bound``, level, at rest) and
+    bounds, with ``env.reward`` (so an evaluation's return is in the reward's units; success is not)."""
     return HoverVecEnv(
         n_envs=n_envs, backend=instantiate(env_cfg.backends[env_cfg.backend]), wind=wind, vehicle=vehicle,
         reward=HoverReward(**env_cfg.reward),
