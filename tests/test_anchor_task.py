@@ -24,12 +24,13 @@ ANCHOR = ["experiment=anchor_task"]
 def anchor_formula(p, v, a, q_w, hover):
     """The anchor's reward as its paper writes it (../shared/NOTES.md): 2 - 0.5 (Cp|p|^2 + 5(1 - q_w^2) + Cv|v|^2 +
     Ca|a - hover|^2), Cp 5, Cv = Ca = 0.01 (the curriculum's start)."""
-    return 2 - 0.5 * (5 * (p ** 2).sum(1) + 5 * (1 - q_w ** 2) + 0.01 * (v ** 2).sum(1) + 0.01 * ((a - hover) ** 2).sum(1))
+    return 2 - 0.5 * (5 * (p ** 2).sum(1) + 5 * (1 - q_w ** 2) + 0.01 * (v ** 2).sum(1)
+                      + 0.01 * ((a - hover) ** 2).sum(1))
 
 
 def test_the_presets_weights_squared_are_the_anchors_formula():
-    """The preset's weights with the anchor's squared costs (env.reward.power=2; the preset's own power is 1, measured in
-    docs/anchor_task.md) give the anchor's reward."""
+    """The preset's weights with the anchor's squared costs (env.reward.power=2; the preset's own power is 1,
+    measured in docs/anchor_task.md) give the anchor's reward."""
     assert compose_cfg(ANCHOR).env.reward.power == 1
     reward = HoverReward(**compose_cfg(ANCHOR + ["env.reward.power=2"]).env.reward)
     rng = np.random.default_rng(0)
@@ -128,7 +129,8 @@ def test_the_compiled_collects_step_the_anchor_task_as_the_env_does(algorithm):
 
 @pytest.mark.parametrize("learner", ["sb3", "jax"])
 def test_td3_trains_on_the_anchor_task_on_both_learners(learner):
-    cfg = compose_cfg(ANCHOR + [f"agent.learner={learner}", "agent.policy.net_arch=[8,8]", "agent.td3.learning_starts=64",
+    cfg = compose_cfg(ANCHOR + [f"agent.learner={learner}", "agent.policy.net_arch=[8,8]",
+                                "agent.td3.learning_starts=64",
                                 "agent.td3.batch_size=32", "agent.td3.round_steps=128", "agent.td3.train_freq=2"])
     validate(cfg)
     env = make_env(cfg.env, 1, wind_schedule(cfg.wind), 0, learning=True)
@@ -158,7 +160,8 @@ def test_the_options_switched_off_move_no_job_key_and_bad_values_are_one_line():
     for override, message in [("env.reward.power=3", "env.reward.power=3: must be 1 (norms"),
                               ("env.terminate_radius=0", "env.terminate_radius=0"),
                               ("env.reward.w_q=-1", "env.reward.w_q=-1"),
-                              ("env.terminate_radius=3", "env.terminate_radius=3: must be > 3.46 m, the farthest start")]:
+                              ("env.terminate_radius=3",
+                               "env.terminate_radius=3: must be > 3.46 m, the farthest start")]:
         with pytest.raises(ConfigError) as error:
             validate(compose_cfg([override]))
         assert one_line(error.value).startswith(message)

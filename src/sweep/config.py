@@ -401,13 +401,11 @@ def drop_as_before(env: dict) -> dict:
     for name, unchanged in ENV_AS_BEFORE.items():
         if isinstance(env.get(name), dict) and unchanged(env[name]):
             env.pop(name)
-    for name, value in ENV_KEYS_AS_BEFORE[""].items():
-        if name in env and env[name] == value:
-            env.pop(name)
-    for block, defaults in [(b, d) for b, d in ENV_KEYS_AS_BEFORE.items() if b]:
-        for name, value in defaults.items():
-            if isinstance(env.get(block), dict) and name in env[block] and env[block][name] == value:
-                env[block].pop(name)
+    for block, defaults in ENV_KEYS_AS_BEFORE.items():
+        keys = env if not block else env.get(block)
+        for name, value in defaults.items() if isinstance(keys, dict) else ():
+            if name in keys and keys[name] == value:
+                keys.pop(name)
     return env
 
 

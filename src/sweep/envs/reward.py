@@ -19,10 +19,11 @@ Seconds" (Eschmann et al. 2024; ../shared/NOTES.md), ``R = 2 - 0.5 (5 ||p||^2 + 
     R = alive_bonus - (w_p ||p||^k + w_v ||v||^k + w_a ||a - a_ref||^k + w_q (1 - q_w^2))
 
 with ``power`` k (1: Eqs. 3-4's norms; 2: quadratic costs), ``w_q`` the attitude cost (``1 - q_w^2`` is the squared
-sine of half the angle of the vehicle's whole rotation, yaw included: 0 level and unyawed, 1 at any 180 deg rotation) and ``action_reference`` a_ref (zero:
-``||a||``, the paper's and RotorPy's; hover: the command of the nominal vehicle's hover speed, ``HoverVecEnv``'s
-``hover_action``). The anchor's weights: ``power=2 w_p=2.5 w_q=2.5 w_v=0.005 w_a=0.005 action_reference=hover
-alive_bonus=2 crash_reward=null`` (conf/experiment/anchor_task.yaml).
+sine of half the angle of the vehicle's whole rotation, yaw included: 0 level and unyawed, 1 at any 180 deg rotation)
+and ``action_reference`` a_ref (zero: ``||a||``, the paper's and RotorPy's; hover: the command of the nominal
+vehicle's hover speed, ``HoverVecEnv``'s ``hover_action``). The anchor's weights: ``power=2 w_p=2.5 w_q=2.5
+w_v=0.005 w_a=0.005 action_reference=hover alive_bonus=2 crash_reward=null`` (conf/experiment/anchor_task.yaml keeps
+them with power 1, docs/anchor_task.md).
 
 ``step_reward`` is the rule for one vehicle, compiled with numba so the env's step kernel and
 ``HoverReward`` (the NumPy-facing form) share one formula; it reads the constants as ``RewardWeights``
