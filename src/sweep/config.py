@@ -132,6 +132,35 @@ class Curriculum:
 
 
 @dataclass
+class CurriculumFactors:
+    w_p: float = positive(" (x per stage; 1: held)")
+    w_v: float = positive(" (x per stage; 1: held)")
+    w_a: float = positive(" (x per stage; 1: held)")
+    w_q: float = positive(" (x per stage; 1: held)")
+
+
+def _limit() -> Any:
+    return key(lambda v: v is None or (_finite(v) and v >= 0), "a number >= 0 or null (no limit)", default=None)
+
+
+@dataclass
+class CurriculumLimits:
+    w_p: Optional[float] = _limit()
+    w_v: Optional[float] = _limit()
+    w_a: Optional[float] = _limit()
+    w_q: Optional[float] = _limit()
+
+
+@dataclass
+class RewardCurriculum:
+    every: Optional[int] = key(lambda v: v is None or v > 0, "an integer > 0 (env steps) or null (no curriculum)",
+                               default=None)
+    factor: CurriculumFactors = field(default_factory=CurriculumFactors)
+    limit: CurriculumLimits = field(default_factory=CurriculumLimits)
+    recompute_replay: bool = MISSING
+
+
+@dataclass
 class Target:
     """A block built by hydra.utils.instantiate from its ``_target_``."""
     _target_: str = MISSING
@@ -160,6 +189,7 @@ class Env:
     observe: Observe = field(default_factory=Observe)
     start: Start = field(default_factory=Start)
     curriculum: Curriculum = field(default_factory=Curriculum)
+    reward_curriculum: RewardCurriculum = field(default_factory=RewardCurriculum)
     reward_scale: float = positive()
     time_limit: TimeLimit = MISSING
     reward: Reward = field(default_factory=Reward)
@@ -386,6 +416,7 @@ ENV_AS_BEFORE: dict[str, Callable[[dict], bool]] = {
                                                      "critic_condition")),
     "start": lambda b: not any(b.get(k) for k in ("tilt_deg", "velocity", "body_rate")),
     "curriculum": lambda b: b.get("start_bound_from") is None,
+    "reward_curriculum": lambda b: b.get("every") is None,
 }
 # Env keys added since, with the value that means "as before": dropped when they hold it. Top-level keys under "",
 # a block's keys under its name.
@@ -753,6 +784,10 @@ def _cross_rules(c: DictConfig) -> None:
     if c.env.curriculum.start_bound_from is not None and c.env.curriculum.start_bound_from > c.env.start_bound:
         raise ConfigError(f"env.curriculum.start_bound_from={c.env.curriculum.start_bound_from:g}: must be <= "
                           f"env.start_bound={c.env.start_bound:g} (the curriculum widens the start box to it)")
+    for name, limit in c.env.reward_curriculum.limit.items():
+        if c.env.reward_curriculum.every is not None and limit is not None and limit < c.env.reward[name]:
+            raise ConfigError(f"env.reward_curriculum.limit.{name}={limit:g}: must be >= env.reward.{name}="
+                              f"{c.env.reward[name]:g} (the curriculum raises the weight up to it) or null")
     radius, farthest = c.env.terminate_radius, c.env.start_bound * math.sqrt(3)
     if radius is not None and radius <= farthest:
         raise ConfigError(f"env.terminate_radius={radius:g}: must be > {farthest:.3g} m, the farthest start "

@@ -299,8 +299,8 @@ class JaxPPO(StepwiseLearning, OnPolicyAlgorithm):
                                 episode_starts=buf.episode_starts, values=buf.values, log_probs=buf.log_probs)
         t = 0
         while t < n_rollout_steps:  # the weights are read at every call (a written weight acts at once)
-            env.sync_condition()  # the vehicle in force (the wind of every step is in ``wind``)
-            to_change = env.steps_to_vehicle_change()
+            env.sync_condition()  # the vehicle and reward weights in force (the wind of every step is in ``wind``)
+            to_change = env.steps_to_task_change()
             t_stop = n_rollout_steps if to_change is None else min(n_rollout_steps, t + to_change)
             policy = rollout.Policy(pi=rollout.Mlp(*self._pi), vf=rollout.Mlp(*self._vf), log_std=self._log_std,
                                     relu=self._relu, layer_norm=self.layer_norm)

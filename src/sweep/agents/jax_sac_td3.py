@@ -239,7 +239,7 @@ class _JaxOffPolicy:
         t = episodes = 0
         while t < k:
             env.sync_condition()
-            to_change = env.steps_to_vehicle_change()
+            to_change = env.steps_to_task_change()
             t_stop = k if to_change is None else min(k, t + to_change)
             t_next, pos, wrapped = replay_rollout.fly_replay(t, t_stop, warm, obs, dones, draws, sigma, wind,
                                                              self._actor, replay, buf.pos, env.kernel)

@@ -13,6 +13,9 @@ finished; the update after it returns an ``OffPolicyUpdate`` of all the round's 
 them). So a hook's ``every_updates`` and the diagnostics' ``every_rollouts`` count rounds, and a remedy acts between
 the gradient steps of one round and the next. Inside a round the order of env steps and gradient steps is SB3's.
 
+Under a reward curriculum (``env.reward_curriculum``) ``update()`` first re-scores the replay buffer when a new stage
+has begun (``rescore_replay``), as the anchor does, so both learners (they fill the same SB3 buffer) do it alike.
+
 Only this module and the learner modules touch SB3's loop fields (``replay_buffer``, ``ep_info_buffer``,
 ``lr_schedule``, ``_last_obs``, ``action_noise``).
 """
@@ -42,6 +45,7 @@ class RoundwiseLearning:
     _round_counts: dict[str, int]
     _round_steps_run = 0
     _ends_round = False
+    _replay_stage = 0  # the reward curriculum's stage the replay buffer's rewards were computed at
 
     def begin(self, timesteps: int, reset: bool = True) -> int:
         """``learn()``'s set-up for ``timesteps`` more steps (``reset``: from 0, env reset); returns the total."""
@@ -98,6 +102,7 @@ class RoundwiseLearning:
     def update(self) -> OffPolicyUpdate:
         """SB3's ``train(gradient_steps, batch_size)`` once past ``learning_starts``, as its ``learn()``; the record
         of the round so far (the loop reads it when the round ends)."""
+        self.rescore_replay()
         steps = self.gradient_steps_per_turn
         if self.num_timesteps > self.learning_starts and steps > 0:
             caught = Logger(folder=None, output_formats=[])
@@ -122,6 +127,27 @@ class RoundwiseLearning:
             self._round_from = self.num_timesteps
             self._clear_round()
         return record
+
+    def rescore_replay(self, chunk: int = 65536) -> bool:
+        """When the env's reward curriculum has moved to a new stage since the buffer was last scored, every stored
+        reward re-computed with the new weights (``HoverVecEnv.rewards_of`` on the stored next observations and
+        actions, ``chunk`` rows at a time); returns whether it did. ``recompute_replay: false`` only follows the stage
+        (the buffer keeps each reward as it was given)."""
+        env = self.env
+        stage = getattr(env, "reward_stage", 0)
+        if stage == self._replay_stage:
+            return False
+        self._replay_stage = stage
+        if not env.reward_curriculum.recompute_replay:
+            return False
+        buf = self.replay_buffer
+        size = buf.buffer_size if buf.full else buf.pos
+        for start in range(0, size, chunk):
+            rows = slice(start, min(size, start + chunk))
+            next_obs, actions = buf.next_observations[rows], buf.actions[rows]
+            buf.rewards[rows] = env.rewards_of(next_obs.reshape(-1, next_obs.shape[-1]),
+                                               actions.reshape(-1, actions.shape[-1])).reshape(actions.shape[:2])
+        return True
 
     def _train_counts(self, key: str, steps: int) -> int:
         """How many gradient steps the mean SB3 logged for ``key`` covers (TD3's actor loss: the delayed ones)."""
@@ -169,6 +195,7 @@ class RoundwiseLearning:
                 "round": {"from": self._round_from, "episodes": list(self._round_episodes),
                           "sums": dict(self._round_sums), "counts": dict(self._round_counts),
                           "steps": self._round_steps_run, "ends": self._ends_round, "last": self._last_round_steps},
+                "replay_stage": self._replay_stage,
                 "action_noise": _noise_state(self.action_noise),
                 "action_space_rng": self.action_space.np_random.bit_generator.state,   # learning_starts' uniform draws
                 "learner": self.learner_state()}
@@ -185,6 +212,7 @@ class RoundwiseLearning:
         for key, value in replay["arrays"].items():
             getattr(buf, key)[:len(value)] = np.asarray(value)   # a tensor (a checkpoint before 2026-12-07: an array)
         buf.pos, buf.full = int(replay["pos"]), bool(replay["full"])
+        self._replay_stage = int(state.get("replay_stage", 0))   # checkpoints before the reward curriculum: 0
         r = state["round"]
         self._round_from, self._round_episodes = r["from"], [Episode(*e) for e in r["episodes"]]
         self._round_sums, self._round_counts = dict(r["sums"]), dict(r["counts"])

@@ -6,7 +6,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from sweep.envs.hover import HoverVecEnv
-from sweep.envs.reward import HoverReward
+from sweep.envs.reward import HoverReward, RewardCurriculum
 from sweep.envs.vehicle import VehicleSchedule, VehicleSegment
 from sweep.envs.wind import WindSchedule
 
@@ -15,7 +15,8 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
              vehicle: VehicleSchedule | None = None) -> HoverVecEnv:
     """The hover env of ``env_cfg`` with ``n_envs`` vehicles on the backend ``env.backend`` names among
     ``env.backends``, under ``wind`` and ``vehicle`` (None: nominal); the reward it returns is scaled by
-    ``env.reward_scale``, its starts follow ``env.start`` and ``env.curriculum`` and it ends episodes beyond
+    ``env.reward_scale``, its starts follow ``env.start`` and ``env.curriculum``, its weights
+    ``env.reward_curriculum``, and it ends episodes beyond
     ``env.terminate_radius``, only for a learner
     (``learning=True``): evaluations score every agent on the same starts (+-``env.start_bound``, level, at rest) and
     bounds, with ``env.reward`` (so an evaluation's return is in the reward's units; success is not)."""
@@ -29,7 +30,16 @@ def make_env(env_cfg: DictConfig, n_envs: int, wind: WindSchedule, seed: int, le
         observation_scale=dict(env_cfg.observation_scale), reward_scale=env_cfg.reward_scale if learning else 1.0,
         observe=dict(env_cfg.get("observe") or {}),
         start=dict(env_cfg.start) if learning and env_cfg.get("start") else None,
-        curriculum=dict(env_cfg.curriculum) if learning and env_cfg.get("curriculum") else None, seed=seed)
+        curriculum=dict(env_cfg.curriculum) if learning and env_cfg.get("curriculum") else None,
+        reward_curriculum=reward_curriculum(env_cfg.get("reward_curriculum")) if learning else None, seed=seed)
+
+
+def reward_curriculum(cfg: DictConfig | None) -> RewardCurriculum | None:
+    """The ``env.reward_curriculum`` block's schedule (None when absent or off: the weights stay)."""
+    if cfg is None or cfg.get("every") is None:
+        return None
+    return RewardCurriculum(every=int(cfg.every), factor=dict(cfg.factor), limit=dict(cfg.limit),
+                            recompute_replay=bool(cfg.recompute_replay))
 
 
 def wind_schedule(wind_cfg: DictConfig) -> WindSchedule:

@@ -25,7 +25,8 @@
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode (``action_to_rotor_speed``; its inverse ``rotor_speed_to_action``).
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
-  RotorPy's gym env). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
+  RotorPy's gym env), its weights at the ``reward_curriculum``'s stage of the global step (``sync_condition`` sets
+  them; ``rewards_of`` scores stored transitions with the weights in force). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
   ``terminate_radius`` m from the target (None: no such bound; "Learning to Fly in Seconds" ends at 0.6 m), a crash
   like leaving the bounds.
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
@@ -52,7 +53,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 from sweep.envs.backends.base import Backend, Vehicles
 from sweep.envs.backends.fast import FastBackend, Physics, rotation_matrix
 from sweep.envs.gusts import GustFilters, add_gusts, gust_rng, new_gusts, settle
-from sweep.envs.reward import HoverReward, RewardWeights, step_reward
+from sweep.envs.reward import HoverReward, RewardCurriculum, RewardWeights, step_reward
 from sweep.envs.schedule import next_boundary
 from sweep.envs.vehicle import NOMINAL, VehicleSchedule, crazyflie_params, hover_rotor_speed
 from sweep.envs.wind import WindSchedule
@@ -257,11 +258,12 @@ class HoverVecEnv(VecEnv):
         observe: dict | None = None,
         start: dict | None = None,
         curriculum: dict | None = None,
+        reward_curriculum: RewardCurriculum | None = None,
         seed: int | None = None,
     ) -> None:
         """``observe``: {rotor_speeds: bool, action_history: k, critic_rotor_speeds: bool, critic_condition: bool};
         ``start``: {tilt_deg, velocity, body_rate}; ``curriculum``: {start_bound_from: m or None, steps} (None: the
-        paper's, each; see the module docstring)."""
+        paper's, each; see the module docstring); ``reward_curriculum``: the reward's weights by stage (None: fixed)."""
         self.time_limit = time_limit
         scale = {"velocity": 1.0, "body_rate": 1.0, **(observation_scale or {})}
         self.velocity_scale, self.body_rate_scale = float(scale["velocity"]), float(scale["body_rate"])
@@ -276,6 +278,8 @@ class HoverVecEnv(VecEnv):
         self.wind = wind or WindSchedule()
         self.vehicle = vehicle or VehicleSchedule()
         self.reward_fn = reward or HoverReward()
+        self.reward_curriculum = reward_curriculum or RewardCurriculum()
+        self.reward_stage = 0   # the curriculum's stage the task's weights are at (sync_condition)
         self.sim = backend(n=n_envs, params=self.params, dt=self.dt)
         self.hover_speed = hover_rotor_speed(self.params)
         self.speed_min = float(self.params["rotor_speed_min"])
@@ -349,6 +353,10 @@ class HoverVecEnv(VecEnv):
         """Bring the (N, 3) wind array and the backend's vehicle to the segments in force at the current global
         step; rebuilt when either schedule's segment index changes (a new direction at the same speed too)."""
         g = self.global_step
+        stage = self.reward_curriculum.stage(g)
+        if stage != self.reward_stage:
+            self.reward_stage = stage
+            self._task = self._task._replace(reward=self.stage_reward().weights(self.hover_action))
         segments = (self.wind.index(g), self.vehicle.index(g))
         if segments == self._segments:
             return
@@ -378,12 +386,40 @@ class HoverVecEnv(VecEnv):
     def _gust_draws(self, n_steps: int) -> np.ndarray:
         return self._gust_rng.uniform(-1.0, 1.0, (n_steps, self.num_envs, 3))
 
-    def steps_to_vehicle_change(self) -> int | None:
-        """Vector steps from now until the vehicle schedule's next segment boundary (None: the vehicle never
-        changes): a compiled loop that steps the backend itself must stop there and ``sync_condition``."""
-        if not self.vehicle.varies:
-            return None
-        return -(-(next_boundary(self.global_step, self.vehicle.segment_steps) - self.global_step) // self.num_envs)
+    def steps_to_task_change(self) -> int | None:
+        """Vector steps from now until the vehicle schedule's next segment boundary or the reward curriculum's next
+        stage, whichever comes first (None: neither changes): a compiled loop that steps the backend itself must
+        stop there and ``sync_condition``."""
+        g = self.global_step
+        changes = [] if not self.vehicle.varies else [next_boundary(g, self.vehicle.segment_steps)]
+        stage_ends = self.reward_curriculum.next_change(g)
+        changes += [] if stage_ends is None else [stage_ends]
+        return None if not changes else -(-(min(changes) - g) // self.num_envs)
+
+    def stage_reward(self) -> HoverReward:
+        """The reward with the weights of the curriculum's stage in force (``reward_fn`` without a curriculum)."""
+        return self.reward_curriculum.reward_at(self.reward_fn, self.reward_stage)
+
+    def rewards_of(self, next_observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The reward (times ``reward_scale``, float32) each transition would get now, with the weights in force,
+        from what a replay buffer keeps: its (N, obs_dim) next observations (a terminal one where the episode
+        ended) and (N, 4) actions. A crash is read off the next state as ``task_outcome`` decides it; the values
+        agree with the env's own to float32 rounding (the env scores the float64 state)."""
+        o = np.asarray(next_observations, dtype=np.float64)
+        p, v = o[:, 0:3], o[:, 3:6] / self.velocity_scale
+        if self.observation == "euler":
+            half = 0.5 * o[:, 6:9]
+            c, s = np.cos(half), np.sin(half)   # q_w of R = Rz(yaw) Ry(pitch) Rx(roll) (quat_to_euler_xyz's angles)
+            q_w = c[:, 0] * c[:, 1] * c[:, 2] + s[:, 0] * s[:, 1] * s[:, 2]
+            w = o[:, 9:12] / self.body_rate_scale
+        else:
+            q_w, w = o[:, 9], o[:, 10:13] / self.body_rate_scale
+        crashed = ((np.abs(p) > self.world_bound).any(1) | (np.abs(v) > SAFE_SPEED).any(1)
+                   | (np.abs(w) > SAFE_RATE).any(1) | ((p * p).sum(1) > self.terminate_radius ** 2))
+        a = np.clip(np.asarray(actions, dtype=np.float32), -1.0, 1.0)
+        rewards = self.stage_reward()(p, v, a, crashed=crashed, q_w=q_w, hover_action=self.hover_action)
+        return (rewards.astype(np.float32) * np.float32(self.reward_scale) if self.reward_scale != 1.0
+                else rewards.astype(np.float32))
 
     def start_bound_at(self, global_step: int) -> float:
         """The start box's half-width (m) at ``global_step``: ``start_bound``, or under the curriculum the linear

@@ -25,6 +25,10 @@ vehicle's hover speed, ``HoverVecEnv``'s ``hover_action``). The anchor's weights
 w_v=0.005 w_a=0.005 action_reference=hover alive_bonus=2 crash_reward=null`` (conf/experiment/anchor_task.yaml keeps
 them with power 1, docs/anchor_task.md).
 
+The anchor also raises its weights as training goes on: every ``every`` env steps it multiplies each weight by its
+``factor``, up to its ``limit``, and re-computes the rewards already in the replay buffer. ``RewardCurriculum``
+is that schedule (``env.reward_curriculum``, training only; stage k's weight is min(w_0 factor^k, limit)).
+
 ``step_reward`` is the rule for one vehicle, compiled with numba so the env's step kernel and
 ``HoverReward`` (the NumPy-facing form) share one formula; it reads the constants as ``RewardWeights``
 (``HoverReward.weights``).
@@ -32,7 +36,7 @@ them with power 1, docs/anchor_task.md).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numba
@@ -124,3 +128,41 @@ class HoverReward:
         out = np.empty(len(p))
         _batch_reward(p, v, a, q_w, crashed, self.weights(hover_action), out)
         return out
+
+
+CURRICULUM_WEIGHTS = ("w_p", "w_v", "w_a", "w_q")
+
+
+@dataclass(frozen=True)
+class RewardCurriculum:
+    """The anchor's reward-weight curriculum: at every ``every`` env steps of the run's clock (summed over vehicles)
+    a stage begins, and stage k's weight is ``min(w_0 * factor**k, limit)`` for each weight named in ``factor`` (a
+    weight not named keeps its value; a limit of None: no limit). ``every`` None: no curriculum (stage 0 always)."""
+    every: int | None = None
+    factor: dict = field(default_factory=dict)
+    limit: dict = field(default_factory=dict)
+    recompute_replay: bool = True   # an off-policy learner re-computes its replay's rewards at each new stage
+
+    def __post_init__(self) -> None:
+        for name in (*self.factor, *self.limit):
+            if name not in CURRICULUM_WEIGHTS:
+                raise ValueError(f"{name!r}: the curriculum raises {', '.join(CURRICULUM_WEIGHTS)}")
+
+    def stage(self, global_step: int) -> int:
+        """The stage in force at ``global_step``: ``global_step // every`` (0 without a curriculum)."""
+        return 0 if self.every is None else int(global_step) // int(self.every)
+
+    def next_change(self, global_step: int) -> int | None:
+        """The global step at which the next stage begins (None: no curriculum)."""
+        return None if self.every is None else (self.stage(global_step) + 1) * int(self.every)
+
+    def reward_at(self, reward: HoverReward, stage: int) -> HoverReward:
+        """``reward`` with stage ``stage``'s weights."""
+        if stage == 0:
+            return reward
+        weights = {}
+        for name, factor in self.factor.items():
+            value = getattr(reward, name) * float(factor) ** stage
+            limit = self.limit.get(name)
+            weights[name] = value if limit is None else min(value, float(limit))
+        return replace(reward, **weights)
