@@ -15,6 +15,8 @@ from sweep.checkpoint import job_key
 from sweep.config import ConfigError, one_line, validate
 from sweep.envs.factory import make_env, wind_schedule
 from sweep.envs.reward import HoverReward, RewardCurriculum
+from sweep.monitor import EnvMonitor
+from sweep.training.records import RolloutRecord
 
 ANCHOR = ["experiment=anchor_task"]
 CURRICULUM = RewardCurriculum(every=100, factor={"w_p": 1.2, "w_v": 1.4, "w_a": 1.4, "w_q": 1.0},
@@ -145,8 +147,13 @@ def test_each_new_stage_re_scores_the_replay_on_both_learners(learner):
                                atol=2e-5)
 
 
-def test_a_checkpoint_keeps_the_stage_its_replay_was_scored_at():
-    model, _, state = run_td3("jax", checkpoint_at=600)
+def test_a_checkpoint_keeps_the_stage_its_replay_was_scored_at_and_the_weights_in_force_are_logged():
+    model, env, state = run_td3("jax", checkpoint_at=600)
+    record = RolloutRecord(index=1, timesteps=model.num_timesteps, episodes=(), mean_recent_return=None,
+                           condition=env.condition())
+    logged = EnvMonitor().after_rollout(model, record)
+    assert logged["env/reward_stage"] == 3 and logged["env/reward_w_p"] == pytest.approx(2.5 * 8)
+    assert logged["env/reward_w_q"] == 2.5 and "env/wind_speed" in logged
     assert state["replay_stage"] == 2
     restored, _, _ = run_td3("jax")
     restored.load_training_state(state)

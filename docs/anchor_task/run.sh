@@ -5,6 +5,8 @@
 #   docs/anchor_task/run.sh pilot    # seeds 100-103, 300k: the reward's power (1, 2) x w_p (2.5, 10); chose power=1, w_p=2.5
 #   docs/anchor_task/run.sh long     # seeds 100-103, 1M: does the chosen form come in closer with training?
 #   docs/anchor_task/run.sh main     # the preset as chosen on seeds 0-15, which chose nothing
+#   docs/anchor_task/run.sh curriculum  # seeds 100-103, 1M: the anchor's reward-weight curriculum on each power
+#   docs/anchor_task/run.sh curriculum-main  # the curriculum as chosen on seeds 16-31, which chose nothing
 #   docs/anchor_task/run.sh report   # the tables and figures -> docs/anchor_task/pilot (pilot, long), main
 #   docs/anchor_task/run.sh export   # FINISHED runs -> docs/anchor_task/runs (commit them)
 #   docs/anchor_task/run.sh import   # the archive -> the store (re-make every table without training)
@@ -18,6 +20,8 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/anchor}
 MAIN_COMMIT=${MAIN_COMMIT:-e3d845e}
+CURRICULUM_COMMIT=${CURRICULUM_COMMIT:-6e05257}   # env.reward_curriculum
+CURRICULUM=(env.reward_curriculum.every=100000 train.total_timesteps=1000000)
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/anchor_task/runs
 BY=env.reward.power,env.reward.w_p
@@ -25,9 +29,10 @@ export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db   # the store of 12-07 als
                                                       # sweep named weights (run.sh pilot names them all pilot)
 mkdir -p "$STUDY"
 
-sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and checkpoints; output under $STUDY
-  local code=$STUDY/code-$MAIN_COMMIT name=$1; shift
-  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$MAIN_COMMIT"
+sweep() {  # sweep NAME OVERRIDES...: COMMIT's code (MAIN_COMMIT), the study's store and checkpoints; output under $STUDY
+  local commit=${COMMIT:-$MAIN_COMMIT} name=$1; shift
+  local code=$STUDY/code-$commit
+  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=anchor_task train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
   for job in "$STUDY"/ckpt/*/; do   # a FINISHED job's checkpoint holds its replay buffer: dead weight
@@ -43,6 +48,7 @@ case ${1:-} in
   pilot)   sweep pilot seed=100,101,102,103 env.reward.power=1,2 env.reward.w_p=2.5,10 ;;
   long)    sweep long seed=100,101,102,103 train.total_timesteps=1000000 eval.every_timesteps=100000 ;;
   main)    sweep main seed=0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15 ;;
+  curriculum)  COMMIT=$CURRICULUM_COMMIT sweep curriculum seed=100,101,102,103 env.reward.power=1,2 "${CURRICULUM[@]}" ;;
   report)  report pilot 100-103 --by "$BY,train.total_timesteps"   # the pilot's four cells and the long runs
            report main 0-15
            (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 100-103 "$BY,train.total_timesteps") \

@@ -80,9 +80,16 @@ class NonFiniteGuard(Hook):
 
 class EnvMonitor(Hook):
     """Logs the condition in force at each rollout end (``Condition.metrics``: ``env/segment``, ``env/wind_speed``,
-    ``env/wind_x|y|z``, ``env/mass_factor``, ``env/rotor_efficiency_1..4``)."""
+    ``env/wind_x|y|z``, ``env/mass_factor``, ``env/rotor_efficiency_1..4``) and, under a reward curriculum
+    (``env.reward_curriculum``), its stage and the weights in force (``env/reward_stage``, ``env/reward_w_p|v|a|q``)."""
 
     Settings = HookSettings
 
     def after_rollout(self, learner, rollout: RolloutRecord) -> dict:
-        return rollout.condition.metrics()
+        out = rollout.condition.metrics()
+        env = getattr(learner, "env", None)
+        if getattr(env, "reward_curriculum", None) is not None and env.reward_curriculum.every is not None:
+            reward = env.stage_reward()
+            out.update({"env/reward_stage": float(env.reward_stage),
+                        **{f"env/reward_{w}": float(getattr(reward, w)) for w in ("w_p", "w_v", "w_a", "w_q")}})
+        return out
