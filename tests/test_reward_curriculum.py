@@ -36,13 +36,19 @@ def test_stage_k_multiplies_each_weight_by_its_factor_to_the_k_up_to_its_limit()
     assert RewardCurriculum().stage(10 ** 9) == 0 and RewardCurriculum().next_change(5) is None
     with pytest.raises(ValueError, match="'w_x'"):
         RewardCurriculum(every=1, factor={"w_x": 2.0})
+    assert CURRICULUM.reward_at(base, 10 ** 6).w_p == 3.0   # far past the float range of 1.2**k: the limit
+    assert RewardCurriculum(every=1, factor={"w_q": 2.0}).reward_at(HoverReward(), 10 ** 6).w_q == 0.0
 
 
-@pytest.mark.parametrize("observation", ["quaternion", "euler"])
-def test_the_env_raises_its_weights_on_the_global_clock_and_rewards_of_scores_as_it_does(observation):
-    """Every step's reward is ``rewards_of`` on the state it returns (tilted starts, crashes beyond the radius
-    included), before and after the stages change; after a change the weights are the new stage's."""
+@pytest.mark.parametrize("observation,crash_reward", [("quaternion", "null"), ("euler", "null"),
+                                                      ("quaternion", "-500"), ("euler", "-500")])
+def test_the_env_raises_its_weights_on_the_global_clock_and_rewards_of_scores_as_it_does(observation, crash_reward):
+    """Every step's reward is ``rewards_of`` on the state it returns (tilted starts; crashes beyond the radius, which
+    a crash_reward of -500 scores as such), before and after the stages change; after a change the weights are the
+    new stage's."""
     cfg = compose_cfg(ANCHOR + [f"env.observation={observation}", "env.reward.power=2", "env.reward_scale=0.5",
+                                f"env.reward.crash_reward={crash_reward}", "env.observation_scale.velocity=0.3",
+                                "env.observation_scale.body_rate=0.7",
                                 "env.reward_curriculum.every=64", "env.reward_curriculum.limit.w_p=1000"])
     validate(cfg)
     env = make_env(cfg.env, 8, wind_schedule(cfg.wind), 3, learning=True)
@@ -56,6 +62,8 @@ def test_the_env_raises_its_weights_on_the_global_clock_and_rewards_of_scores_as
         state = np.array([infos[i]["terminal_observation"] if dones[i] else obs[i] for i in range(8)])
         np.testing.assert_allclose(env.rewards_of(state, actions), rewards, rtol=2e-5, atol=2e-5)
         crashes += sum(info.get("crashed", False) for info in infos)
+        if crash_reward == "-500":
+            assert (rewards[[info.get("crashed", False) for info in infos]] == -250).all()   # x reward_scale
     assert crashes > 0
     assert env.stage_reward().w_p == pytest.approx(2.5 * 1.2 ** 4) and env.stage_reward().w_q == 2.5
     evaluation = make_env(cfg.env, 8, wind_schedule(cfg.wind), 3)   # evaluations keep the base weights
@@ -67,12 +75,14 @@ def test_the_env_raises_its_weights_on_the_global_clock_and_rewards_of_scores_as
 @pytest.mark.parametrize("algorithm", ["ppo", "td3"])
 def test_the_compiled_collects_change_the_weights_at_the_step_the_env_does(algorithm):
     """The JAX learners' collects stop at a stage's start and fly on with its weights: their transitions are
-    ``HoverVecEnv.step``'s for the same actions, across 4 stages."""
+    ``HoverVecEnv.step``'s for the same actions, across 4 stages (every 125 env steps on 2 vehicles: a stage begins
+    inside a vector step, which flies the stage of its first env step)."""
     steps = ["agent.ppo.n_steps=256", "agent.ppo.batch_size=64"] if algorithm == "ppo" else \
-        ["agent.td3.learning_starts=600", "agent.td3.batch_size=32", "agent.td3.round_steps=256"]
+        ["agent.td3.learning_starts=600", "agent.td3.batch_size=32", "agent.td3.round_steps=256",
+         "env.reward_curriculum.recompute_replay=false"]   # each reward as the collect wrote it
     cfg = compose_cfg(ANCHOR + [f"agent={algorithm}", "agent.learner=jax", "agent.policy.net_arch=[16,16]",
-                                "env.episode_seconds=0.6", "env.n_envs=2", "env.reward_curriculum.every=126",
-                                "env.reward_curriculum.factor.w_p=3", "env.reward_curriculum.limit.w_p=null",
+                                "env.episode_seconds=0.6", "env.n_envs=2", "env.reward_curriculum.every=125",
+                                "env.reward_curriculum.factor.w_p=3", "env.reward_curriculum.limit.w_p=1000",
                                 *steps])
     validate(cfg)
 
@@ -107,7 +117,7 @@ def run_td3(learner: str, recompute: bool = True, checkpoint_at: int | None = No
                                 "agent.td3.learning_starts=64", "agent.td3.batch_size=32",
                                 "agent.td3.round_steps=128", "agent.td3.train_freq=2",
                                 "env.reward_curriculum.every=256", "env.reward_curriculum.factor.w_p=2",
-                                "env.reward_curriculum.limit.w_p=null",
+                                "env.reward_curriculum.limit.w_p=1000",
                                 f"env.reward_curriculum.recompute_replay={str(recompute).lower()}"])
     validate(cfg)
     env = make_env(cfg.env, 2, wind_schedule(cfg.wind), 0, learning=True)
@@ -175,8 +185,12 @@ def test_the_block_switched_off_moves_no_job_key_and_bad_values_are_one_line():
             ("env.reward_curriculum.every=0", "env.reward_curriculum.every=0: must be an integer > 0 (env steps) or null"),
             ("env.reward_curriculum.factor.w_p=0", "env.reward_curriculum.factor.w_p=0: must be a number > 0"),
             ("env.reward_curriculum.limit.w_p=0.5",
-             "env.reward_curriculum.limit.w_p=0.5: must be >= env.reward.w_p=1 (the curriculum raises")]:
+             "env.reward_curriculum.limit.w_p=0.5: must be >= env.reward.w_p=1 (the curriculum raises"),
+            ("env.reward_curriculum.limit.w_v=null",
+             "env.reward_curriculum.limit.w_v=null: must be a number with env.reward_curriculum.factor.w_v=1.4 > 1"),
+            ("eval.policy=both", "eval.policy=both: must be final under env.reward_curriculum.every=100")]:
         overrides = [override] + ([] if "every" in override else ["env.reward_curriculum.every=100"])
+        overrides += [] if "eval.policy" in override else ["eval.policy=final"]
         with pytest.raises(ConfigError) as error:
             validate(compose_cfg(overrides))
         assert one_line(error.value).startswith(message), one_line(error.value)

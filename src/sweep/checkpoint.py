@@ -44,7 +44,8 @@ def job_key(cfg: DictConfig, uri: str) -> str:
     settings (a run with another hook list, or a hook set otherwise, is another job). Settings of a remedy the agent
     does not compose (``config.unrun_remedy_settings``) are not in it either: such jobs are the same job, and a
     sweep that lists it twice runs it once (``JobRecord.hold``). A block added since whose setting means "as before"
-    (``config.ENV_AS_BEFORE``: the env's observe, start and curriculum switched off) stays out too."""
+    (``config.ENV_AS_BEFORE``: the env's observe, start, curriculum and reward_curriculum switched off; and
+    ``config.ENV_KEYS_AS_BEFORE``'s keys at their "as before" values) stays out too."""
     container = settings(cfg)
     drop_as_before(container.get("env", {}))
     agent = container.get("agent", {})

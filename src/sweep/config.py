@@ -765,6 +765,24 @@ def _off_policy_rules(c: DictConfig, algorithm: str) -> None:
                           f"train_freq x env.n_envs = {h.train_freq * c.env.n_envs} env steps")
 
 
+def _reward_curriculum_rules(c: DictConfig) -> None:
+    rc = c.env.reward_curriculum
+    if rc.every is None:
+        return
+    for name, limit in rc.limit.items():
+        if limit is None and rc.factor[name] > 1:
+            raise ConfigError(f"env.reward_curriculum.limit.{name}=null: must be a number with "
+                              f"env.reward_curriculum.factor.{name}={rc.factor[name]:g} > 1 (the weight would grow "
+                              "without bound)")
+        if limit is not None and limit < c.env.reward[name]:
+            raise ConfigError(f"env.reward_curriculum.limit.{name}={limit:g}: must be >= env.reward.{name}="
+                              f"{c.env.reward[name]:g} (the curriculum raises the weight up to it) or null")
+    if c.eval.policy.value != "final":
+        raise ConfigError(f"eval.policy={c.eval.policy.value}: must be final under env.reward_curriculum.every="
+                          f"{rc.every} (the best policy is picked by its training return, whose weights change "
+                          "each stage)")
+
+
 def _cross_rules(c: DictConfig) -> None:
     """Rules across keys, which no field type says."""
     a = c.agent
@@ -784,10 +802,7 @@ def _cross_rules(c: DictConfig) -> None:
     if c.env.curriculum.start_bound_from is not None and c.env.curriculum.start_bound_from > c.env.start_bound:
         raise ConfigError(f"env.curriculum.start_bound_from={c.env.curriculum.start_bound_from:g}: must be <= "
                           f"env.start_bound={c.env.start_bound:g} (the curriculum widens the start box to it)")
-    for name, limit in c.env.reward_curriculum.limit.items():
-        if c.env.reward_curriculum.every is not None and limit is not None and limit < c.env.reward[name]:
-            raise ConfigError(f"env.reward_curriculum.limit.{name}={limit:g}: must be >= env.reward.{name}="
-                              f"{c.env.reward[name]:g} (the curriculum raises the weight up to it) or null")
+    _reward_curriculum_rules(c)
     radius, farthest = c.env.terminate_radius, c.env.start_bound * math.sqrt(3)
     if radius is not None and radius <= farthest:
         raise ConfigError(f"env.terminate_radius={radius:g}: must be > {farthest:.3g} m, the farthest start "

@@ -13,8 +13,9 @@ finished; the update after it returns an ``OffPolicyUpdate`` of all the round's 
 them). So a hook's ``every_updates`` and the diagnostics' ``every_rollouts`` count rounds, and a remedy acts between
 the gradient steps of one round and the next. Inside a round the order of env steps and gradient steps is SB3's.
 
-Under a reward curriculum (``env.reward_curriculum``) ``update()`` first re-scores the replay buffer when a new stage
-has begun (``rescore_replay``), as the anchor does, so both learners (they fill the same SB3 buffer) do it alike.
+Under a reward curriculum (``env.reward_curriculum``) ``collect()`` ends by re-scoring the replay buffer when a new
+stage has begun (``rescore_replay``), as the anchor does, so both learners (they fill the same SB3 buffer) do it alike
+and the round's hooks and updates see one stage's rewards.
 
 Only this module and the learner modules touch SB3's loop fields (``replay_buffer``, ``ep_info_buffer``,
 ``lr_schedule``, ``_last_obs``, ``action_noise``).
@@ -69,6 +70,7 @@ class RoundwiseLearning:
                                     learning_starts=self.learning_starts, log_interval=None)
         if not out.continue_training:
             raise RuntimeError("the rollout stopped early")
+        self.rescore_replay()
         self._round_episodes.extend(episodes.episodes)
         self._ends_round = (self.num_timesteps - self._round_from >= self.round_steps
                             or self.num_timesteps >= self._total)
@@ -102,7 +104,6 @@ class RoundwiseLearning:
     def update(self) -> OffPolicyUpdate:
         """SB3's ``train(gradient_steps, batch_size)`` once past ``learning_starts``, as its ``learn()``; the record
         of the round so far (the loop reads it when the round ends)."""
-        self.rescore_replay()
         steps = self.gradient_steps_per_turn
         if self.num_timesteps > self.learning_starts and steps > 0:
             caught = Logger(folder=None, output_formats=[])
@@ -131,7 +132,7 @@ class RoundwiseLearning:
     def rescore_replay(self, chunk: int = 65536) -> bool:
         """When the env's reward curriculum has moved to a new stage since the buffer was last scored, every stored
         reward re-computed with the new weights (``HoverVecEnv.rewards_of`` on the stored next observations and
-        actions, ``chunk`` rows at a time); returns whether it did. ``recompute_replay: false`` only follows the stage
+        actions, about ``chunk`` transitions at a time); returns whether it did. ``recompute_replay: false`` only follows the stage
         (the buffer keeps each reward as it was given)."""
         env = self.env
         stage = getattr(env, "reward_stage", 0)
@@ -142,8 +143,9 @@ class RoundwiseLearning:
             return False
         buf = self.replay_buffer
         size = buf.buffer_size if buf.full else buf.pos
-        for start in range(0, size, chunk):
-            rows = slice(start, min(size, start + chunk))
+        step = max(1, chunk // buf.n_envs)
+        for start in range(0, size, step):
+            rows = slice(start, min(size, start + step))
             next_obs, actions = buf.next_observations[rows], buf.actions[rows]
             buf.rewards[rows] = env.rewards_of(next_obs.reshape(-1, next_obs.shape[-1]),
                                                actions.reshape(-1, actions.shape[-1])).reshape(actions.shape[:2])

@@ -25,8 +25,8 @@
 * Action: 4 motor speeds in [-1, 1], mapped linearly to [rotor_speed_min, rotor_speed_max] as in
   RotorPy's ``cmd_motor_speeds`` mode (``action_to_rotor_speed``; its inverse ``rotor_speed_to_action``).
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
-  RotorPy's gym env), its weights at the ``reward_curriculum``'s stage of the global step (``sync_condition`` sets
-  them; ``rewards_of`` scores stored transitions with the weights in force). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
+  RotorPy's gym env), its weights at the ``reward_curriculum``'s stage of the global step (``sync_condition``
+  sets them; ``rewards_of`` scores stored transitions with the weights in force). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
   ``terminate_radius`` m from the target (None: no such bound; "Learning to Fly in Seconds" ends at 0.6 m), a crash
   like leaving the bounds.
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
@@ -405,7 +405,7 @@ class HoverVecEnv(VecEnv):
         from what a replay buffer keeps: its (N, obs_dim) next observations (a terminal one where the episode
         ended) and (N, 4) actions. A crash is read off the next state as ``task_outcome`` decides it; the values
         agree with the env's own to float32 rounding (the env scores the float64 state)."""
-        o = np.asarray(next_observations, dtype=np.float64)
+        o = np.asarray(next_observations[:, :13], dtype=np.float64)   # the state's columns (12 under euler)
         p, v = o[:, 0:3], o[:, 3:6] / self.velocity_scale
         if self.observation == "euler":
             half = 0.5 * o[:, 6:9]

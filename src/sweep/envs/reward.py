@@ -162,7 +162,10 @@ class RewardCurriculum:
             return reward
         weights = {}
         for name, factor in self.factor.items():
-            value = getattr(reward, name) * float(factor) ** stage
-            limit = self.limit.get(name)
+            base, limit = getattr(reward, name), self.limit.get(name)
+            try:
+                value = base * float(factor) ** stage
+            except OverflowError:   # factor**stage past the float range: capped long before (config refuses no cap)
+                value = math.inf if base else 0.0
             weights[name] = value if limit is None else min(value, float(limit))
         return replace(reward, **weights)
