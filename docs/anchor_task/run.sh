@@ -7,7 +7,8 @@
 #   docs/anchor_task/run.sh main     # the preset as chosen on seeds 0-15, which chose nothing
 #   docs/anchor_task/run.sh curriculum  # seeds 100-103, 1M: the anchor's reward-weight curriculum on each power
 #   docs/anchor_task/run.sh curriculum-main  # the curriculum as chosen on seeds 16-31, which chose nothing
-#   docs/anchor_task/run.sh report   # the tables and figures -> docs/anchor_task/pilot (pilot, long), main
+#   docs/anchor_task/run.sh report   # the tables and figures -> docs/anchor_task/pilot (pilot, long, curriculum), main,
+#                                    #   curriculum (its held-out seeds)
 #   docs/anchor_task/run.sh export   # FINISHED runs -> docs/anchor_task/runs (commit them)
 #   docs/anchor_task/run.sh import   # the archive -> the store (re-make every table without training)
 #
@@ -24,7 +25,7 @@ CURRICULUM_COMMIT=${CURRICULUM_COMMIT:-6e05257}   # env.reward_curriculum
 CURRICULUM=(env.reward_curriculum.every=100000 train.total_timesteps=1000000)
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/anchor_task/runs
-BY=env.reward.power,env.reward.w_p
+BY=env.reward.power,env.reward.w_p,env.reward_curriculum.every
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db   # the store of 12-07 also holds the pilot's cells in a
                                                       # sweep named weights (run.sh pilot names them all pilot)
 mkdir -p "$STUDY"
@@ -49,11 +50,16 @@ case ${1:-} in
   long)    sweep long seed=100,101,102,103 train.total_timesteps=1000000 eval.every_timesteps=100000 ;;
   main)    sweep main seed=0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15 ;;
   curriculum)  COMMIT=$CURRICULUM_COMMIT sweep curriculum seed=100,101,102,103 env.reward.power=1,2 "${CURRICULUM[@]}" ;;
+  curriculum-main)  COMMIT=$CURRICULUM_COMMIT sweep curriculum-main seed=16,17,18,19,20,21,22,23,24,25,26,27,28,29,30,31 \
+                      "${CURRICULUM[@]}" ;;   # the preset's linear costs (power 1)
   report)  report pilot 100-103 --by "$BY,train.total_timesteps"   # the pilot's four cells and the long runs
            report main 0-15
-           (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 100-103 "$BY,train.total_timesteps") \
+           (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 100-103 "$BY,train.total_timesteps" 800000) \
              > "$ROOT/docs/anchor_task/pilot/distance.md"   # where each seed ends: distance, crashes
-           (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 0-15) > "$ROOT/docs/anchor_task/main/distance.md" ;;
+           (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 0-15) > "$ROOT/docs/anchor_task/main/distance.md"
+           report curriculum 16-31   # the curriculum's held-out seeds
+           (cd "$STUDY" && "$PY" "$ROOT/docs/anchor_task/distance.py" 16-31 "" 800000) \
+             > "$ROOT/docs/anchor_task/curriculum/distance.md" ;;
   export)  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment anchor-task --out "$ARCHIVE/anchor-task") ;;
   import)  for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
   *) sed -n 2,11p "$0"; exit 2 ;;
