@@ -10,6 +10,7 @@ from omegaconf import open_dict
 from stable_baselines3.common.utils import configure_logger
 
 from conftest import compose_cfg
+from test_anchor_task import replay_compiled_collect
 from sweep.agents import build_learner
 from sweep.checkpoint import job_key
 from sweep.config import ConfigError, one_line, validate
@@ -77,38 +78,10 @@ def test_the_compiled_collects_change_the_weights_at_the_step_the_env_does(algor
     """The JAX learners' collects stop at a stage's start and fly on with its weights: their transitions are
     ``HoverVecEnv.step``'s for the same actions, across 4 stages (every 125 env steps on 2 vehicles: a stage begins
     inside a vector step, which flies the stage of its first env step)."""
-    steps = ["agent.ppo.n_steps=256", "agent.ppo.batch_size=64"] if algorithm == "ppo" else \
-        ["agent.td3.learning_starts=600", "agent.td3.batch_size=32", "agent.td3.round_steps=256",
-         "env.reward_curriculum.recompute_replay=false"]   # each reward as the collect wrote it
-    cfg = compose_cfg(ANCHOR + [f"agent={algorithm}", "agent.learner=jax", "agent.policy.net_arch=[16,16]",
-                                "env.episode_seconds=0.6", "env.n_envs=2", "env.reward_curriculum.every=125",
-                                "env.reward_curriculum.factor.w_p=3", "env.reward_curriculum.limit.w_p=1000",
-                                *steps])
-    validate(cfg)
-
-    def env():
-        return make_env(cfg.env, 2, wind_schedule(cfg.wind), 5, learning=True)
-    model = build_learner(cfg.agent, env(), 5, 10_000)
-    model.set_logger(configure_logger(0, None, "", False))
-    model.begin(512)
-    model.collect()
-    while algorithm == "td3" and model.replay_buffer.pos < 256:
-        model.collect()
-    if algorithm == "ppo":
-        buf, n = model.rollout_buffer, 256
-        actions, rewards = np.clip(buf.actions, -1, 1), buf.rewards
-    else:
-        buf = model.replay_buffer
-        n, actions, rewards = buf.pos, buf.actions, buf.rewards
+    model, _ = replay_compiled_collect(algorithm, [
+        "env.reward_curriculum.every=125", "env.reward_curriculum.factor.w_p=3", "env.reward_curriculum.limit.w_p=1000",
+        "env.reward_curriculum.recompute_replay=false"], learning_starts=600)   # each reward as the collect wrote it
     assert model.env.reward_stage == 4
-    replay = env()
-    replay.reset()
-    for t in range(n):
-        _, step_rewards, dones, infos = replay.step(actions[t])
-        if algorithm == "ppo":   # PPO adds the time limit's bootstrap to a truncated step's reward
-            step_rewards = np.where([infos[i].get("TimeLimit.truncated", False) for i in range(2)], rewards[t],
-                                    step_rewards)
-        np.testing.assert_array_equal(rewards[t], step_rewards)
 
 
 def run_td3(learner: str, recompute: bool = True, checkpoint_at: int | None = None):
