@@ -155,7 +155,8 @@ def test_the_block_switched_off_moves_no_job_key_and_bad_values_are_one_line():
     assert job_key(compose_cfg(["env.reward_curriculum.every=100000"]), "sqlite:///x.db") != \
         job_key(base, "sqlite:///x.db")
     for override, message in [
-            ("env.reward_curriculum.every=0", "env.reward_curriculum.every=0: must be an integer > 0 (env steps) or null"),
+            ("env.reward_curriculum.every=0",
+             "env.reward_curriculum.every=0: must be an integer > 0 (env steps) or null"),
             ("env.reward_curriculum.factor.w_p=0", "env.reward_curriculum.factor.w_p=0: must be a number > 0"),
             ("env.reward_curriculum.limit.w_p=0.5",
              "env.reward_curriculum.limit.w_p=0.5: must be >= env.reward.w_p=1 (the curriculum raises"),

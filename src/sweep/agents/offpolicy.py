@@ -132,8 +132,8 @@ class RoundwiseLearning:
     def rescore_replay(self, chunk: int = 65536) -> bool:
         """When the env's reward curriculum has moved to a new stage since the buffer was last scored, every stored
         reward re-computed with the new weights (``HoverVecEnv.rewards_of`` on the stored next observations and
-        actions, about ``chunk`` transitions at a time); returns whether it did. ``recompute_replay: false`` only follows the stage
-        (the buffer keeps each reward as it was given)."""
+        actions, about ``chunk`` transitions at a time); returns whether it did. ``recompute_replay: false`` only
+        follows the stage (the buffer keeps each reward as it was given)."""
         env = self.env
         stage = getattr(env, "reward_stage", 0)
         if stage == self._replay_stage:

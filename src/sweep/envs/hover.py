@@ -26,7 +26,8 @@
   RotorPy's ``cmd_motor_speeds`` mode (``action_to_rotor_speed``; its inverse ``rotor_speed_to_action``).
 * Reward: ``HoverReward`` (Eqs. 3-4; the step that leaves the bounds gets ``crash_reward``, -500 as in
   RotorPy's gym env), its weights at the ``reward_curriculum``'s stage of the global step (``sync_condition``
-  sets them; ``rewards_of`` scores stored transitions with the weights in force). Termination: out of bounds (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
+  sets them; ``rewards_of`` scores stored transitions with the weights in force). Termination: out of bounds
+  (|p_i| > world_bound, |v_i| > 100, |w_i| > 100), or farther than
   ``terminate_radius`` m from the target (None: no such bound; "Learning to Fly in Seconds" ends at 0.6 m), a crash
   like leaving the bounds.
   ``time_limit="truncate"`` (default) reports the time limit as a truncation, per env with that env's
