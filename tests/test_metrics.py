@@ -24,7 +24,7 @@ def test_the_report_reads_its_panels_and_columns_from_the_registry():
     """The figures, Table III and the summary columns the report writes are the registry's (the keys they read
     are checked against real runs above)."""
     assert list(figures.CURVES) == ["reward", "episode_length", "dormant", "weight_norm", "learning_rate",
-                                    "eval_success", "eval_crash", "ppo_update", "probe"]
+                                    "eval_success", "eval_crash", "eval_distance", "ppo_update", "probe"]
     assert [c.key for c in figures.CURVES["dormant"]] == [
         "plasticity/dormant_ratio", "plasticity/dormant_ratio_tau0.1", "plasticity/dead_tanh_ratio",
         "plasticity/signed_mean_ratio", "plasticity/saturated_ratio"]

@@ -38,7 +38,7 @@ SWEEP = ["-m", "agent=ppo,recom_l2", "++agent.l2.coef=0.001,0.01", "seed=0,1", "
          f"tracking.experiment={EXPERIMENT}", "hydra.launcher.n_jobs=2"]
 BY = ["--by", "agent.l2.coef", "--baseline", "agent=ppo"]
 CURVE_METRICS = {stem: panels[0].key for stem, panels in figures.CURVES.items()}  # figure -> its first panel
-SPARSE = {"eval_success", "eval_crash"}  # a figure only for >= 2 logged steps
+SPARSE = {"eval_success", "eval_crash", "eval_distance"}  # a figure only for >= 2 logged steps
 ARTIFACTS = {"final": "eval_trajectories.npz", "best": "eval_best_trajectories.npz"}  # the flights (sweep.run)
 TABLES = ["table3.md", "table3.tex", "table3.csv", "summary.md", "summary.csv", "segments.md", "segments.csv"]
 
@@ -212,7 +212,8 @@ def log_many_agents(client: MlflowClient, experiment: str, seeds: int = 2, fligh
                        for key, values in curves.items() for s, v in zip(steps, values)]
             metrics += [Metric(key, v, 0, int(s)) for s in steps[::10] for key, v in
                         [("eval/success_rate", min(1.0, s / 20_000 * (0.3 + k / 20))),
-                         ("eval/crash_rate", max(0.0, 0.5 - s / 40_000 - k / 40))]]
+                         ("eval/crash_rate", max(0.0, 0.5 - s / 40_000 - k / 40)),
+                         ("eval/final_distance", max(0.05, 2.0 - s / 10_000 * (1 + k / 10)))]]
             end = "eval" if policy == "final" else "eval_best"
             metrics += [Metric(f"{end}/{key}", v, 1, 20_000) for key, v in
                         [("mse_x", 0.1 * (k + 1) + seed), ("mse_y", 0.2), ("mse_z", 0.3), ("return", -100.0 * k - seed)]
@@ -1507,11 +1508,12 @@ SEGMENT_EVALS = {  # agent -> evaluations every 100 steps in each of three segme
 
 
 def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "flip", vehicle: str = "nominal",
-                     dormant: dict | None = None) -> None:
+                     dormant: dict | None = None, distances: dict | None = None) -> None:
     """Experiment ``experiment`` (made if new): per (agent, evaluations by segment, probe losses, eval.condition) two
     seeds (the evaluations a dict by seed where the seeds differ) on a ``wind`` schedule (with ``vehicle``) of
     segments of 400 steps to 1200, evaluations every 100 steps; the probe (+0.001 x seed) at 400, 800 and 1200;
-    with ``dormant`` (agent -> four values) the dormant share (+0.001 x seed) at 400, 500, 700 and 900."""
+    with ``dormant`` (agent -> four values) the dormant share (+0.001 x seed) at 400, 500, 700 and 900; with
+    ``distances`` (agent -> final distances by segment, as the evaluations) eval/final_distance at the same steps."""
     known = client.get_experiment_by_name(experiment)
     exp_id = known.experiment_id if known else client.create_experiment(experiment)
     for agent, segs, probe, condition in runs:
@@ -1522,6 +1524,9 @@ def log_segment_runs(client, experiment: str, runs: list[tuple], wind: str = "fl
             evals = [v for seg in (segs[seed] if isinstance(segs, dict) else segs) for v in seg]
             metrics = [Metric("rollout/ep_rew_mean", -100.0, 0, int(s)) for s in range(100, 1201, 100)]
             metrics += [Metric("eval/success_rate", v, 0, 100 * (i + 1)) for i, v in enumerate(evals)]
+            far = (distances or {}).get(agent, [])
+            far = [v for seg in (far[seed] if isinstance(far, dict) else far) for v in seg]
+            metrics += [Metric("eval/final_distance", v, 0, 100 * (i + 1)) for i, v in enumerate(far)]
             metrics += [Metric("plasticity/probe_loss", p + 0.001 * seed, 0, 400 * (i + 1)) for i, p in enumerate(probe)]
             metrics += [Metric("plasticity/dormant_ratio", v + 0.001 * seed, 0, step) for step, v in
                         zip((400, 500, 700, 900), (dormant or {}).get(agent, []))]

@@ -105,3 +105,86 @@ def test_a_failed_twin_job_is_filed_under_the_twins_name(tmp_path):
         write_status(job, "FAILED", reason="killed")
     cells = unrun_jobs([str(tmp_path / "sweep")], set(), "twins")
     assert [c["agent"] for c in cells] == ["layer_norm", "layer_norm_fresh"] and {c["seed"] for c in cells} == {3}
+
+
+START = [1.0, 0.5, 0.2, 0.1]   # segment 0's final distances (m): mean 0.45
+TWIN_DISTANCES = {   # agent -> each evaluation's mean final distance (m), as TWIN_EVALS' evaluations
+    "reset_all": [START] * 3,                                                   # 0.45 in every segment
+    "ppo": [START, [0.2] * 4, [2.0] * 4],                                       # re-learning distance 1.1
+    "layer_norm": [START, [0.4] * 4, [0.8] * 4],                                # 0.6
+    "layer_norm_fresh": {0: [START, [0.2] * 4, [0.2] * 4],                      # 0.2
+                         1: [START, [0.2] * 4, [0.4] * 4]},                     # 0.3
+    "redo": [START, [0.3] * 4, [0.3] * 4],
+    "redo_fresh": {0: [START, [0.3] * 4, [0.3] * 4],
+                 1: [[1.0, 0.5, 0.2, 0.2], [0.3] * 4, [0.3] * 4]},   # seed 1: success alike, a distance not
+}
+
+
+def test_the_re_learning_distance_against_its_own_twin_on_hand_built_evaluations(tmp_path):
+    """The evaluations' final distances beside their success: LayerNorm flies 0.4 and 0.8 m out after the changes
+    where its twin flies 0.2/0.2 and 0.2/0.4 m (by seed): Δ +0.35 m [0.3, 0.4], P(nearer than own twin) 0; PPO
+    1.1 m against reset_all's 0.45 (+0.65); ReDo's twin flew segment 0 with the same success but not the same
+    distances on seed 1, so 1 of 2 pairs is the same run."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    evals = {**TWIN_EVALS, "redo_fresh": [SAME_0, [1.0] * 4, [1.0] * 4]}
+    log_segment_runs(MlflowClient(uri), "twins", [(a, evals[a], [], "current") for a in TWIN_DISTANCES],
+                     distances=TWIN_DISTANCES)
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "twins")
+    assert code == 0, stdout + stderr
+    runs = pd.read_csv(tmp_path / "out" / "relearning_runs.csv").groupby("agent")
+    assert runs["relearning_distance"].mean().to_dict() == pytest.approx(
+        {"reset_all": 0.45, "ppo": 1.1, "layer_norm": 0.6, "layer_norm_fresh": 0.25, "redo": 0.3, "redo_fresh": 0.3})
+    assert runs["first_distance"].mean().to_dict() == pytest.approx(
+        {"reset_all": 0.45, "ppo": 0.45, "layer_norm": 0.45, "layer_norm_fresh": 0.45, "redo": 0.45,
+         "redo_fresh": 0.4625})
+
+    got = pd.read_csv(tmp_path / "out" / "twins.csv").set_index(["agent", "segment"])
+    assert list(got.loc["layer_norm", "distance_vs_twin"]) == pytest.approx([0.0, 0.2, 0.5])
+    assert got.loc[("layer_norm", 2), "distance_vs_twin_low"] == pytest.approx(0.4)
+    assert got.loc[("layer_norm", 2), "distance_vs_twin_high"] == pytest.approx(0.6)
+    assert got.loc[("layer_norm", 0), "same_pairs"] == 2 and got.loc[("redo", 0), "same_pairs"] == 1
+
+    shown = md_table(tmp_path / "out" / "twins.md").set_index("Agent")
+    assert shown.loc["layer_norm", "Re-learning distance Δ vs own twin (m) [95% CI]"] == "0.35 [0.30, 0.40]"
+    assert shown.loc["layer_norm", "P(nearer than own twin) [95% CI]"] == "0.00 [0.00, 0.00]"
+    assert shown.loc["PPO", "Re-learning distance Δ vs own twin (m) [95% CI]"] == "0.65 [0.65, 0.65]"
+    assert shown.loc["redo", "Segment 0 the same run (pairs)"] == "1/2"
+    assert shown.loc["redo", "P(nearer than own twin) [95% CI]"] == "0.50 [0.50, 0.50]"   # ties count half
+
+    table = md_table(tmp_path / "out" / "relearning.md").set_index("Agent")
+    assert table.loc["PPO", "Re-learning distance (m)"] == "1.10 ± 0.00"
+    assert table.loc["PPO", "Distance Δ vs reset_all (m) [95% CI]"] == "0.65 [0.65, 0.65]"
+    assert (tmp_path / "out" / "interval_relearning_distance.png").exists()
+    assert (tmp_path / "out" / "eval_distance_flip.png").exists()
+
+
+def test_without_logged_distances_no_distance_cells():
+    """Runs that did not log eval/final_distance during training (older stores): NaN distances, no distance
+    columns in relearning.md's table, no pairs."""
+    from sweep.report import relearning
+
+    histories = pd.DataFrame({"run_id": "a", "key": "eval/success_rate", "step": [100, 200, 300, 400],
+                              "value": [0.0, 1.0, 0.5, 1.0]})
+    runs = pd.DataFrame({"run_id": ["a"], "segment_steps": [200.0], "total_timesteps": [400],
+                         "eval_condition": ["current"]})
+    seg = stats.segment_evaluations(histories, runs)
+    assert list(seg["auc"]) == [0.5, 0.75] and seg["distance_auc"].isna().all()
+    per_run = relearning.per_run(seg, runs)
+    assert per_run["relearning"].iloc[0] == 0.75 and np.isnan(per_run["relearning_distance"].iloc[0])
+
+
+def test_a_lower_is_better_interval_measure_draws_its_lowest_row_on_top():
+    from sweep.report import intervals
+    from sweep.report.conditions import build
+
+    runs = pd.DataFrame({"run_id": list("abcd"), "agent": ["ppo", "ppo", "layer_norm", "layer_norm"],
+                         "wind": "flip", "seed": [0, 1, 0, 1], "start_time": 0, "label": ["PPO", "PPO", "LN", "LN"],
+                         "relearning_distance": [1.0, 1.2, 0.2, 0.4]})
+    runs, conds = build(runs, [])
+    table = intervals.estimates(runs, intervals.MEASURES["relearning_distance"], conds)
+    assert list(table["agent"]) == ["ppo", "layer_norm"]   # the last row is drawn at the top: the nearest
+    assert table["point"].tolist() == pytest.approx([1.1, 0.3])
+    wide = runs.assign(relearning_distance=[1.0, 1.02, 0.0, 0.6])   # LayerNorm's t-interval reaches below 0
+    cut = intervals.estimates(wide, intervals.MEASURES["relearning_distance"], conds).set_index("agent")
+    assert cut.loc["layer_norm", "low"] == 0.0 and cut.loc["layer_norm", "cut"]
+    assert cut.loc["layer_norm", "high"] > 2.0 and not cut.loc["ppo", "cut"]

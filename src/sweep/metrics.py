@@ -85,6 +85,7 @@ class Curve:
 
 REWARD = "rollout/ep_rew_mean"
 EVAL_SUCCESS = eval_key("final", "success_rate")   # also logged during training (eval.every_timesteps)
+EVAL_DISTANCE = eval_key("final", "final_distance")   # likewise: the mean over the flights of the distance at the end
 AT_BOUND = "recom/at_bound"
 PROBE, PROBE_FRESH = "plasticity/probe_loss", "plasticity/probe_loss_fresh"
 
@@ -114,6 +115,9 @@ CURVES = [
     Curve("train/learning_rate", "Learning rate", "learning_rate", logy=True, always=True),
     Curve(EVAL_SUCCESS, "Evaluation success (%)", "eval_success", 100.0, ylim=(-3, 103), sparse=True),
     Curve(eval_key("final", "crash_rate"), "Evaluation crashes (%)", "eval_crash", 100.0, ylim=(-3, 103), sparse=True),
+    Curve(EVAL_DISTANCE, "Evaluation final\ndistance (m)", "eval_distance", logy=True, sparse=True,
+          note="Final distance: the mean over the evaluation's flights of the distance to the target at the end "
+               "(a crash keeps its exit point)."),
     # PPO's own health: how far each update moves a policy whose exploration noise shrinks
     Curve("train/std", "Policy std\n(action units)", "ppo_update", logy=True,
           final="final_policy_std", title="Final policy std", digits=3),

@@ -7,7 +7,7 @@ interval_success_best, interval_final_reward, one panel per arm (wind x --by val
 Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (the policy's readings, a panel
 each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean ≈ 0, saturated
 activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
-learning_rate_W, eval_success_W and eval_crash_W (only if runs evaluated during training,
+learning_rate_W, eval_success_W, eval_crash_W and eval_distance_W (only if runs evaluated during training,
 eval.every_timesteps > 0); eval_flights_3d and eval_position_axes (the final policy's flights; the best policy's
 where no run evaluated its final policy). Tables: table3.{md,tex,csv} (evaluation under wind of the final policy
 and of the best one kept during training, side by side, and the top seed's numbers), summary.{md,csv} (training
@@ -19,7 +19,8 @@ wind) and segment_scores_end (the same for the success at each segment's end), t
 learned segment 0 (segment_scores_learned.{md,csv,png}), segment_runs.csv (every run's segments),
 relearning.{md,csv} (sorted by the re-learning AUC, relearning.py; with the rank correlation of the probe and
 the network's readings to it, reading_correlation.csv and the figure readings_<wind>; every run's measures and
-readings in relearning_runs.csv) and interval_relearning. Agents whose fresh twins ran beside them (twin=fresh; PPO's
+readings in relearning_runs.csv), interval_relearning and interval_relearning_distance (the same flights' mean
+final distance). Agents whose fresh twins ran beside them (twin=fresh; PPO's
 is reset_all) add twins.{md,csv} and the figure twins (each agent against its own twin, paired by seed: twins.py).
 """
 from __future__ import annotations

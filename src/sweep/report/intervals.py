@@ -29,12 +29,15 @@ LABEL_WIDTH = 26       # characters per line of an agent's label
 class Measure:
     """A per-run column aggregated over seeds: by its mean with a 95% Student-t CI (``mean``) or by rliable's IQM
     with a 95% stratified-bootstrap CI (``iqm``), drawn times ``scale``. A ``percent`` measure lies in [0, 100],
-    and its CI is cut there (a t-interval over few bimodal seeds can reach past both ends)."""
+    and its CI is cut there (a t-interval over few bimodal seeds can reach past both ends), a ``nonnegative`` one's
+    at 0; a ``lower_is_better`` measure (a distance) sorts its best, lowest row to the top."""
     column: str
     title: str
     statistic: str
     scale: float = 1.0
     percent: bool = False
+    lower_is_better: bool = False
+    nonnegative: bool = False
 
 
 # File stem interval_<name> -> the measure: the leaderboard's primary measure, the final and best policy's success
@@ -49,6 +52,9 @@ MEASURES = {
     "final_reward": Measure("final_reward", "IQM final training reward", "iqm"),
     "relearning": Measure("relearning", "Re-learning AUC (%): mean eval success within the segments after the first",
                           "mean", 100.0, True),   # runs evaluated in two segments or more (relearning.py)
+    "relearning_distance": Measure("relearning_distance", "Re-learning distance (m): mean final distance to the "
+                                   "target of the evaluations within the segments after the first (lower is "
+                                   "better)", "mean", lower_is_better=True, nonnegative=True),   # logged in training
 }
 STATISTIC = {"mean": "mean over seeds, bar: 95% Student-t CI", "iqm": "IQM over seeds, bar: 95% bootstrap CI"}
 
@@ -69,7 +75,7 @@ def estimate(values, statistic: str) -> tuple[float, float, float, int]:
 
 def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
     """One row per panel (arm: 'wind W' and the --by values) and condition with runs that have the measure:
-    panel, condition, agent, label, point, low, high, n, cut; each panel's rows sorted by the point, highest last;
+    panel, condition, agent, label, point, low, high, n, cut; each panel's rows sorted by the point, best last;
     a percent measure's CI cut to [0, 100] (cut: whether it reached past either end)."""
     rows = []
     for wind in sorted(df["wind"].unique(), key=lambda w: (w != "paper", w)):
@@ -80,14 +86,16 @@ def estimates(df: pd.DataFrame, measure: Measure, conds) -> pd.DataFrame:
             for cond in shown:
                 point, lo, hi, n = estimate(dw.loc[dw["condition"] == cond, measure.column], measure.statistic)
                 lo, hi = measure.scale * lo, measure.scale * hi
-                cut = measure.percent and (lo < 0.0 or hi > 100.0)
-                if measure.percent:
-                    lo, hi = max(lo, 0.0), min(hi, 100.0)
+                floor = measure.percent or measure.nonnegative
+                cut = (floor and lo < 0.0) or (measure.percent and hi > 100.0)
+                lo = max(lo, 0.0) if floor else lo
+                hi = min(hi, 100.0) if measure.percent else hi
                 if n:
                     panel.append({"panel": arm, "condition": cond, "agent": conds.agent(cond),
                                   "label": conds.series(cond), "point": measure.scale * point,
                                   "low": lo, "high": hi, "n": n, "cut": cut})
-            rows += sorted(panel, key=lambda r: r["point"])  # stable: ties keep the display order
+            sign = -1.0 if measure.lower_is_better else 1.0   # the best last: drawn at the top
+            rows += sorted(panel, key=lambda r: sign * r["point"])  # stable: ties keep the display order
     return pd.DataFrame(rows, columns=["panel", "condition", "agent", "label", "point", "low", "high", "n", "cut"])
 
 
@@ -129,7 +137,8 @@ def interval_figure(df: pd.DataFrame, name: str, conds, out: Path) -> list[Path]
     if measure.percent:
         axes[0, 0].set_xlim(-3, 103)
     reference = "; dashed line: PPO" if (table["agent"] == "ppo").any() else ""
-    cut = " (cut to 0–100)" if table["cut"].any() else ""  # said only where a CI reached past 0 or 100
+    cut = (f" (cut to {'0–100' if measure.percent else 'above 0'})" if table["cut"].any()
+           else "")  # said only where a CI reached past 0 or 100
     caption = f"{measure.title}; {STATISTIC[measure.statistic]}{cut}{reference}"
     fig.supxlabel(textwrap.fill(caption, 60 * len(panels)), fontsize=7)
     return figures.save(fig, out, f"interval_{name}")

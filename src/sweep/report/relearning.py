@@ -13,6 +13,10 @@ per-segment eval-success AUCs:
 * ``relearning_end``: the mean success at the end of those segments (how much was learned by the next change).
 * ``learned_share``: the share of those segments with an evaluation at >= 50% success (stats.HOVER), and
   ``hover_after``: the median timesteps from a change to that first evaluation, over the segments that reach it.
+* ``relearning_distance``: the same mean over the later segments of the evaluations' mean final distance to the
+  target (metres, lower is better; ``first_distance`` for segment 0): the continuous reading of the same
+  evaluations, for learners whose flights come near the target in most seeds but whose success at the 0.1 m
+  radius comes and goes between evaluations (the off-policy anchor task, docs/anchor_task.md).
 * ``learned_first``: 1.0 if the first segment had such an evaluation (the network learned the hover from scratch
   before the first change), else 0.0 (NaN without evaluations in it). Outcomes on the hover task are bimodal per
   seed: a seed whose network never learned has lost no plasticity, it never had the skill. So the table also
@@ -48,7 +52,7 @@ LEARNED_RUNS = "runs that learned segment 0"   # reading_correlation's within-ru
 LEARNED_TITLE = "the seeds that learned segment 0"
 FIRST = "first"           # segment_gains' reference: the run's own segment 0
 COLUMNS = ["run_id", "relearning", "relearning_end", "learned_share", "hover_after", "first_auc", "learned_first",
-           "later_segments"]
+           "later_segments", "relearning_distance", "first_distance"]
 # network readings read at the changes (plasticity_readings): column -> metric; higher should mean less plastic
 AT_CHANGES = {"dormant_at_changes": "plasticity/dormant_ratio", "dead_tanh_at_changes": "plasticity/dead_tanh_ratio",
               "saturated_at_changes": "plasticity/saturated_ratio", "weight_norm_at_changes": "plasticity/weight_norm"}
@@ -92,7 +96,10 @@ def per_run(evals: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
                      "first_auc": float(first.iloc[0]) if len(first) else np.nan,
                      "learned_first": float(g.loc[g["segment"] == 0, "hover_after"].notna().any()) if len(first)
                      else np.nan,
-                     "later_segments": int(len(later))})
+                     "later_segments": int(len(later)),
+                     "relearning_distance": float(later["distance_auc"].mean(skipna=False)),
+                     "first_distance": float(g.loc[g["segment"] == 0, "distance_auc"].iloc[0]) if len(first)
+                     else np.nan})
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -174,6 +181,11 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
         learned_first = g["learned_first"] == 1.0
         relearning_learned, relearning_learned_half, _ = stats.mean_t_ci(g.loc[learned_first, "relearning"])
+        distance, distance_half, _ = stats.mean_t_ci(g["relearning_distance"])
+        theirs_distance = (dw.loc[dw["condition"] == baseline_of(present, cond, "agent", reference),
+                                  "relearning_distance"] if theirs[reference] is not None else None)
+        delta_distance = (stats.mean_diff_ci(g["relearning_distance"], theirs_distance)
+                          if theirs_distance is not None else (np.nan,) * 3)
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
@@ -186,6 +198,9 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                "learned_first_seeds": int(learned_first.sum()), "relearning_if_learned": relearning_learned,
                "relearning_if_learned_ci95": relearning_learned_half,
                "hover_after_median": float(g["hover_after"].median()),
+               "relearning_distance": distance, "relearning_distance_ci95": distance_half,
+               **{f"distance_delta_vs_{reference}{suffix}": delta_distance[i]
+                  for i, suffix in enumerate(("", "_low", "_high"))},
                **{c.final: g[c.final].mean() for c in finals}}
         shown = {"Agent": cond, "Wind": wind, "Seeds": len(g),
                  "Re-learning AUC (%)": plus_minus(100 * mean, 100 * half, 0), "per seed": _per_seed(g, "relearning"),
@@ -202,6 +217,9 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
                  "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
                  "Steps to hover (M)": _fixed(num["hover_after_median"] / 1e6, 2),
+                 **({"Re-learning distance (m)": plus_minus(distance, distance_half, 2),
+                     f"Distance Δ vs {reference} (m) [95% CI]": interval(*delta_distance, 2)}
+                    if np.isfinite(distance) else {}),
                  **{c.title: _fixed(c.scale * num[c.final], c.digits) for c in finals}}
         numbers.append(num)
         display.append(shown)
@@ -323,7 +341,10 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
             "segments hovered = the share of the later segments with an evaluation at >= 50% success; learned "
             "segment 0 = the seeds whose first segment had such an evaluation (learned the hover from scratch), and "
             "the re-learning AUC over those seeds alone (a seed that never learned has no plasticity to lose); "
-            "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians). Then "
+            "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians); "
+            "re-learning distance = the same mean over the later segments of the evaluations' mean final distance "
+            "to the target (m, lower is better: the continuous reading of the same flights, where runs logged it), "
+            f"and its difference to {REFERENCE} [95% bootstrap CI]. Then "
             "the final readings (mean over seeds, over the last 10% of training).\n\n" + markdown(display.fillna("–")))
     readings = plasticity_readings(histories, evals)
     scored = (runs[[c for c in IDENTITY if c in runs]].merge(relearn, on="run_id")

@@ -27,7 +27,8 @@ import pandas as pd
 from rliable import metrics
 from scipy import stats
 
-from sweep.metrics import AT_BOUND, EVAL_SUCCESS, FINALS, REWARD  # FINALS: per-run column -> the curve whose final value it holds
+# FINALS: per-run column -> the curve whose final value it holds
+from sweep.metrics import AT_BOUND, EVAL_DISTANCE, EVAL_SUCCESS, FINALS, REWARD
 
 RESAMPLES = 2000
 FINAL_FRACTION = 0.1  # "final" value of a curve: mean over the last 10% of the run's timesteps
@@ -140,6 +141,10 @@ def segment_rewards(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame
     return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end", "speed", "reward"])
 
 
+SEGMENT_COLUMNS = ["run_id", "segment", "start", "end_step", "auc", "end", "n_evals", "hover_after", "distance_auc",
+                   "distance_end"]
+
+
 def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataFrame:
     """Per run and segment k (the k-th hold of the run's ``wind.segment_steps``; a vehicle schedule on another clock is
     not split by it: give it the same ``segment_steps``): the in-training evaluations logged
@@ -149,12 +154,19 @@ def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataF
     run never learned, and is left out. ``auc``: the area under the
     eval-success curve within the segment, normalised by its length (the evaluations are evenly spaced, so their
     mean); ``end``: the success of the segment's last evaluation; ``n_evals``; ``hover_after``: the timesteps from
-    the segment's start to its first evaluation at >= HOVER success (NaN if none). Segments with no evaluation are
-    left out. Columns run_id, segment, start, end_step, auc, end, n_evals, hover_after."""
+    the segment's start to its first evaluation at >= HOVER success (NaN if none); ``distance_auc`` and
+    ``distance_end``: the same area and last value for the evaluations' mean final distance to the target
+    (EVAL_DISTANCE, metres, lower is better; NaN where a run did not log it at those steps), the continuous
+    reading of the same evaluations. Segments with no evaluation are left out. Columns run_id, segment, start,
+    end_step, auc, end, n_evals, hover_after, distance_auc, distance_end."""
     rows = []
     evals = histories[histories["key"] == EVAL_SUCCESS]
+    distances = histories[histories["key"] == EVAL_DISTANCE]
     for run in runs.itertuples():
         h = evals[evals["run_id"] == run.run_id].sort_values("step")
+        logged = distances[distances["run_id"] == run.run_id]
+        distance = (pd.Series(logged["value"].to_numpy(dtype=float), index=logged["step"].to_numpy())
+                    .reindex(h["step"].to_numpy()).to_numpy(dtype=float))   # at the success' steps
         length = run.segment_steps
         if not len(h) or not np.isfinite(length) or length <= 0:
             continue
@@ -167,14 +179,14 @@ def segment_evaluations(histories: pd.DataFrame, runs: pd.DataFrame) -> pd.DataF
         if np.isfinite(total) and current:
             segment[segment >= np.ceil(total / length)] = -1   # flown under a condition the run did not train on
         for k in np.unique(segment[segment >= 0]):
-            v, at = values[segment == k], steps[segment == k]
+            v, at, d = values[segment == k], steps[segment == k], distance[segment == k]
             hovered = at[v >= HOVER]
             rows.append({"run_id": run.run_id, "segment": int(k), "start": int(k * length),
                          "end_step": int((k + 1) * length), "auc": float(v.mean()), "end": float(v[-1]),
                          "n_evals": int(len(v)),
-                         "hover_after": float(hovered[0] - k * length) if len(hovered) else np.nan})
-    return pd.DataFrame(rows, columns=["run_id", "segment", "start", "end_step", "auc", "end", "n_evals",
-                                       "hover_after"])
+                         "hover_after": float(hovered[0] - k * length) if len(hovered) else np.nan,
+                         "distance_auc": float(d.mean()), "distance_end": float(d[-1])})
+    return pd.DataFrame(rows, columns=SEGMENT_COLUMNS)
 
 
 def mean_t_ci(values) -> tuple[float, float, int]:

@@ -9,8 +9,11 @@ change. So the twin's runs pair with the agent's by seed, exactly, and per agent
   pairs (stats.paired_diff_ci), and P(> own twin) over the same seeds (rliable's probability of improvement [95%
   CI], as every other reference of the report); beside it Δ vs reset_all (PPO's fresh network, the study's reference
   until twins);
-* segment 0: how many pairs flew it identically (equal AUC and end success). It should be all of them; a pair that
-  differs ran other code or settings, and the report says so.
+* the same for the re-learning distance (relearning.per_run's ``relearning_distance``: the evaluations' mean final
+  distance to the target over the later segments, metres, lower is better) where the runs logged it: paired Δ vs
+  own twin [CI] and P(nearer than own twin) [CI], the continuous reading of the same flights;
+* segment 0: how many pairs flew it identically (equal AUC, end success and, where logged, final distances). It
+  should be all of them; a pair that differs ran other code or settings, and the report says so.
 
 Negative Δ vs own twin: the agent re-learns worse than a fresh network of its own kind (plasticity lost); positive:
 what it kept helps (transfer). ``write``: twins.csv (per segment), twins.md, and the figure twins (segment AUC,
@@ -28,6 +31,7 @@ from sweep.report.highlight import Highlight
 from sweep.report.tables import _identity, _ordered_groups, interval, markdown, provenance
 
 REFERENCE = "reset_all"   # a fresh plain PPO network at every change: PPO's own twin
+SAME_RUN = ("auc", "end", "distance_auc", "distance_end")   # equal in a pair's segment 0: the same run
 
 
 def twin_agent(agent: str) -> str:
@@ -57,18 +61,21 @@ def _by_seed(df: pd.DataFrame, cond: str, column: str) -> pd.Series:
     return pd.Series(rows[column].to_numpy(dtype=float), index=rows["seed"].to_numpy())
 
 
-def _paired(mine: pd.Series, its: pd.Series) -> dict[str, float]:
-    """Δ = mine − its over the seeds both have [CI], their number, and P(mine > its) [CI] over the same seeds."""
+def _paired(mine: pd.Series, its: pd.Series, lower_is_better: bool = False) -> dict[str, float]:
+    """Δ = mine − its over the seeds both have [CI], their number, and P(mine better than its) [CI] over the same
+    seeds: P(mine > its), or P(mine < its) if ``lower_is_better`` (a distance)."""
     d, lo, hi, n = stats.paired_diff_ci(mine, its)
     both = pd.concat([mine.rename("x"), its.rename("y")], axis=1, join="inner").dropna()
-    p = stats.poi_ci(both["x"], both["y"]) if len(both) else (np.nan,) * 3
+    sign = -1.0 if lower_is_better else 1.0
+    p = stats.poi_ci(sign * both["x"], sign * both["y"]) if len(both) else (np.nan,) * 3
     return {"delta": d, "low": lo, "high": hi, "pairs": n, "p": p[0], "p_low": p[1], "p_high": p[2]}
 
 
 def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> pd.DataFrame:
     """Per condition x wind x segment, for each agent of ``pairs`` and each twin: the AUC (seed mean, 95% Student-t
-    half-width), and for the agent the paired Δ AUC vs its twin [CI], the pairs, P(> twin) [CI], and on segment 0
-    ``same_pairs`` (pairs whose AUC and end success are equal)."""
+    half-width), and for the agent the paired Δ AUC vs its twin [CI], the pairs, P(> twin) [CI], the paired Δ of
+    the segment's mean final distance (``distance_vs_twin`` [CI], metres), and on segment 0 ``same_pairs`` (pairs
+    whose AUC, end success and final distances are equal: SAME_RUN)."""
     df = runs[["run_id", "wind", "condition", "seed"]].merge(seg, on="run_id")
     drawn = {(wind, c) for (wind, cond), twin in pairs.items() for c in (cond, twin)}
     rows = []
@@ -89,23 +96,30 @@ def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> 
                 row.update({"auc_vs_twin": v["delta"], "auc_vs_twin_low": v["low"], "auc_vs_twin_high": v["high"],
                             "pairs": v["pairs"], "p_improve_over_twin": v["p"],
                             "p_improve_over_twin_low": v["p_low"], "p_improve_over_twin_high": v["p_high"]})
-                if k == 0:
-                    ends = pd.concat([_by_seed(s, cond, "end"), _by_seed(other, twin, "end")], axis=1, join="inner")
-                    aucs = pd.concat([mine, its], axis=1, join="inner")
-                    row["same_pairs"] = int(((aucs.iloc[:, 0] == aucs.iloc[:, 1])
-                                             & (ends.iloc[:, 0] == ends.iloc[:, 1])).sum())
+                far = _paired(_by_seed(s, cond, "distance_auc"), _by_seed(other, twin, "distance_auc"), True)
+                row.update({"distance_vs_twin": far["delta"], "distance_vs_twin_low": far["low"],
+                            "distance_vs_twin_high": far["high"]})
+                if k == 0:   # the same run: equal AUC, end success and (where logged) final distances
+                    a, b = (pd.concat([_by_seed(frame, c, column) for column in SAME_RUN], axis=1, keys=SAME_RUN)
+                            for frame, c in ((s, cond), (other, twin)))
+                    a, b = a.align(b, join="inner", axis=0)
+                    row["same_pairs"] = int(((a == b) | (a.isna() & b.isna())).all(axis=1).sum())
             rows.append(row)
     return pd.DataFrame(rows)
 
 
 def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: dict) -> pd.DataFrame:
-    """Per agent x wind of ``pairs``: the re-learning AUC's paired Δ vs its own twin [CI], P(> twin) [CI], and Δ vs
-    reset_all [CI] (unpaired: other networks on the same seeds) where reset_all ran."""
-    df = runs[["run_id", "wind", "condition", "seed"]].merge(relearn[["run_id", "relearning"]], on="run_id")
+    """Per agent x wind of ``pairs``: the re-learning AUC's paired Δ vs its own twin [CI], P(> twin) [CI], Δ vs
+    reset_all [CI] (unpaired: other networks on the same seeds) where reset_all ran, and the re-learning
+    distance's paired Δ vs its twin [CI] and P(nearer than twin) [CI] over ``distance_pairs`` pairs (0: not
+    logged)."""
+    df = runs[["run_id", "wind", "condition", "seed"]].merge(
+        relearn[["run_id", "relearning", "relearning_distance"]], on="run_id")
     rows = []
     for (wind, cond), twin in pairs.items():
         here = df[df["wind"] == wind]
         v = _paired(_by_seed(here, cond, "relearning"), _by_seed(here, twin, "relearning"))
+        far = _paired(_by_seed(here, cond, "relearning_distance"), _by_seed(here, twin, "relearning_distance"), True)
         ref = baseline_of(_present(conds, here["condition"]), cond, "agent", REFERENCE)
         r = (stats.mean_diff_ci(_by_seed(here, cond, "relearning"), _by_seed(here, ref, "relearning")) if ref
              else (np.nan,) * 3)
@@ -114,7 +128,10 @@ def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: di
                      "relearning_vs_twin_high": v["high"], "p_improve_over_twin": v["p"],
                      "p_improve_over_twin_low": v["p_low"], "p_improve_over_twin_high": v["p_high"],
                      f"relearning_vs_{REFERENCE}": r[0], f"relearning_vs_{REFERENCE}_low": r[1],
-                     f"relearning_vs_{REFERENCE}_high": r[2]})
+                     f"relearning_vs_{REFERENCE}_high": r[2], "distance_pairs": far["pairs"],
+                     "distance_vs_twin": far["delta"], "distance_vs_twin_low": far["low"],
+                     "distance_vs_twin_high": far["high"], "p_nearer_than_twin": far["p"],
+                     "p_nearer_than_twin_low": far["p_low"], "p_nearer_than_twin_high": far["p_high"]})
     return pd.DataFrame(rows)
 
 
@@ -146,18 +163,29 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
                                                    v["p_improve_over_twin_high"], 2),
                 f"Δ vs {REFERENCE} (pp) [95% CI]": interval(*(100 * v[f"relearning_vs_{REFERENCE}{s}"]
                                                              for s in ("", "_low", "_high")), 0)})
+            if v["distance_pairs"]:
+                row.update({
+                    "Re-learning distance Δ vs own twin (m) [95% CI]": interval(
+                        *(v[f"distance_vs_twin{s}"] for s in ("", "_low", "_high")), 2),
+                    "P(nearer than own twin) [95% CI]": interval(v["p_nearer_than_twin"],
+                                                                 v["p_nearer_than_twin_low"],
+                                                                 v["p_nearer_than_twin_high"], 2)})
         for r in mine[mine["segment"] >= 1].itertuples() if "auc_vs_twin" in mine else []:
             row[f"segment {r.segment}: Δ (pp)"] = interval(100 * r.auc_vs_twin, 100 * r.auc_vs_twin_low,
                                                             100 * r.auc_vs_twin_high, 0)
         display.append(row)
     text = (provenance(runs) + "Each agent against its own fresh twin (twin=fresh: the agent's networks and optimizer "
             f"drawn afresh at every change; PPO's twin is {REFERENCE}). Both fly segment 0 as the same run (same seed, "
-            "no change yet): 'Segment 0 the same run' counts the pairs whose segment-0 AUC and end success are equal. "
+            "no change yet): 'Segment 0 the same run' counts the pairs whose segment-0 AUC, end success and (where "
+            "logged) final distances are equal. "
             "Δ = the agent's eval-success AUC minus its twin's, mean of the per-seed differences (runs paired by "
             "seed), 95% percentile-bootstrap CI over the pairs, in percentage points: the re-learning AUC (mean over "
             "the segments after the first) and each later segment. Negative: the agent re-learns worse than a fresh "
             "network of its own kind (plasticity lost); positive: what it kept helps. P(> own twin) = rliable's "
-            f"probability of improvement [95% bootstrap CI]; Δ vs {REFERENCE} as in relearning.md (unpaired).\n\n"
+            f"probability of improvement [95% bootstrap CI]; Δ vs {REFERENCE} as in relearning.md (unpaired). Where "
+            "the runs logged the evaluations' final distance: the re-learning distance's Δ vs own twin (the mean "
+            "final distance to the target over the later segments' evaluations, metres, paired likewise; negative: "
+            "the agent flies nearer than its twin) and P(nearer than own twin).\n\n"
             + markdown(pd.DataFrame(display).fillna("–")))
     (out / "twins.md").write_text(text)
     coloured = {}   # every agent and twin of the figure in colour, however many agents the report has
