@@ -1,0 +1,54 @@
+#!/usr/bin/env bash
+# The plasticity question off-policy (issue 56, item 4; experiment=offpolicy_plasticity; docs/offpolicy_plasticity.md):
+# TD3 (JAX) on the anchor's task, under a wind flip or a payload, against its fresh twin (twin=fresh).
+#
+#   docs/offpolicy_plasticity/run.sh pilot     # seeds 100,101 x flip, payload x continual, fresh twin; 4 x 500k (8 runs)
+#   docs/offpolicy_plasticity/run.sh report    # the report -> docs/offpolicy_plasticity/pilot
+#   docs/offpolicy_plasticity/run.sh stop      # stop a running phase (a re-run resumes: FINISHED jobs are skipped)
+#   docs/offpolicy_plasticity/run.sh export    # FINISHED runs -> docs/offpolicy_plasticity/runs (commit them)
+#   docs/offpolicy_plasticity/run.sh import    # the archive -> the store (re-make every table without training)
+#
+# Every phase is a Hydra multirun with resume=auto. Store, checkpoints and sweep dirs live in $STUDY; each phase runs
+# the code of MAIN_COMMIT from a worktree there. Seeds 100-103 are the pilot's (every choice); seeds 0-15 are kept for
+# the study.
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+STUDY=${STUDY:-/work/studies/offpolicy}
+MAIN_COMMIT=${MAIN_COMMIT:-HEAD}
+PY=${PYTHON:-$ROOT/.venv/bin/python}
+ARCHIVE=$ROOT/docs/offpolicy_plasticity/runs
+export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
+mkdir -p "$STUDY"
+
+sweep() {  # sweep NAME OVERRIDES...: MAIN_COMMIT's code, the study's store and checkpoints; output under $STUDY
+  local commit name=$1; shift
+  commit=$(git -C "$ROOT" rev-parse --short "$MAIN_COMMIT")
+  local code=$STUDY/code-$commit
+  [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
+  (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=offpolicy_plasticity \
+     train.checkpoint_dir="$STUDY/ckpt" hydra.sweep.dir="$STUDY/multirun/$name" "$@")
+  for job in "$STUDY"/ckpt/*/; do   # a FINISHED job's checkpoint holds its replay buffer: dead weight
+    if grep -q '"status": "FINISHED"' "$job/job.json" 2>/dev/null; then rm -f "$job/checkpoint.pt"; fi
+  done
+}
+
+case ${1:-} in
+  pilot)   for change in "flip wind=flip" "payload wind=none vehicle=payload"; do
+             set -- $change
+             sweep "pilot-$1" "${@:2}" seed=100,101                       # the continual agent
+             sweep "pilot-$1-fresh" "${@:2}" seed=100,101 twin=fresh      # its fresh twin
+           done ;;
+  report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment offpolicy-plasticity --out "$ROOT/docs/offpolicy_plasticity/pilot") ;;
+  stop)    drivers=$(pgrep -f "offpolicy_plasticity/run.sh (pilot|main)" || true)
+           sweeps=$(pgrep -f "sweep -m experiment=offpolicy_plasticity" || true)
+           workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
+           [ -n "$drivers$sweeps" ] || { echo "no phase is running"; exit 0; }
+           kill $drivers 2>/dev/null || true; sleep 1
+           kill $sweeps 2>/dev/null || true; sleep 2
+           kill $workers 2>/dev/null || true
+           echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
+  export)  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment offpolicy-plasticity --out "$ARCHIVE/offpolicy-plasticity") ;;
+  import)  for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
+  *) sed -n 2,13p "$0"; exit 2 ;;
+esac
