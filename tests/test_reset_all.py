@@ -80,3 +80,16 @@ def test_a_run_resets_at_each_change_and_resumes_exactly_across_one(name, store,
         run(compose_cfg([*overrides, "tracking.experiment=cut", "resume=never"]), cut)
     resumed = run(compose_cfg([*overrides, "tracking.experiment=cut", f"resume={cut}"]), tmp_path / "again")
     assert history(resumed) == history(whole)
+
+
+def test_a_change_met_by_the_last_rollout_is_not_acted_on(store, tmp_path):
+    """Segments of 1,000 steps, rollouts of 512, 2,000 steps: the condition changes at the rollout ends 1,024 and
+    2,048, the second past the end of training. The run resets at the first only: at the second no training would
+    follow, and the final policy (the one evaluated and kept) would be a fresh draw."""
+    overrides = ["agent.learner=sb3", *RUN, "train.total_timesteps=2000", "wind.segment_steps=1000"]
+    client = MlflowClient(store)
+    run_id = run(compose_cfg(overrides), tmp_path / "run")
+    resets = [(m.step, m.value) for m in client.get_metric_history(run_id, "remedy/reset_all/resets")]
+    assert resets == [(1024, 1.0)]
+    segments = sorted((m.step, m.value) for m in client.get_metric_history(run_id, "env/segment"))
+    assert segments[-1] == (2048, 2.0)   # the run did meet the second change

@@ -6,7 +6,9 @@ A hook has one method per moment of the loop (``sweep.training.loop``) and *retu
     setup(learner, training)        training starts; when resuming, the learner has its timesteps and episode
                                     buffers back, its weights and the hooks' states come after setup
     after_rollout(learner, rollout) a rollout ended, before the update that learns from it
-    at_change(learner, condition)   the first rollout end under a new condition of the schedule
+    at_change(learner, condition)   the first rollout end under a new condition of the schedule, unless it is
+                                    the run's last rollout (a change the run meets as it ends: no training
+                                    follows it, and a fresh twin's final policy would be a fresh draw)
     after_update(learner, update)   an update ended and training goes on (the next rollout uses what hooks leave)
     at_end(learner, update)         the last update ended (what the hooks return is logged at the final step)
 

@@ -2,7 +2,8 @@
 
     for each round, until ``total_timesteps``:
         rollout = learner.collect()                          # RolloutRecord
-        log(hooks.after_rollout(rollout) [+ hooks.at_change(condition), when the condition changed]
+        log(hooks.after_rollout(rollout) [+ hooks.at_change(condition), when the condition changed and
+                                          this is not the run's last rollout]
             + what the previous update's hooks returned)      # SB3's log line, at the timesteps after the rollout
         update = learner.update()                            # UpdateRecord
         pending = update.metrics() + hooks.after_update(update)   # logged with the next rollout's line
@@ -104,7 +105,8 @@ def train(training: Training, resume: dict | None = None) -> UpdateRecord | None
             learner.update()
             continue
         metrics = t.hooks.call("after_rollout", learner, rollout)
-        if t.condition is not None and rollout.condition != t.condition:
+        last = learner.num_timesteps >= total   # the run's last rollout: only its own update follows
+        if t.condition is not None and rollout.condition != t.condition and not last:
             metrics.update(t.hooks.call("at_change", learner, rollout.condition))
         t.condition = rollout.condition
         t.write({**t.pending, **metrics})
