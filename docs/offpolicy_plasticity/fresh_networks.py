@@ -42,19 +42,19 @@ def main(experiment: str = "offpolicy-plasticity", near: float = 0.3) -> None:
     histories = load.load_histories(client, runs)
     ev = stats.segment_evaluations(histories, runs).merge(near_after(histories, runs, near), how="left",
                                                           on=["run_id", "segment"])
-    ev = ev.merge(runs[["run_id", "agent", "wind", "vehicle"]], on="run_id")
+    ev = ev.merge(runs[["run_id", "agent", "wind"]], on="run_id")   # wind: the arm, e.g. flip, none+payload
     length = int(runs["segment_steps"].max())
     marks = range(100_000, length + 1, 100_000)
     print(f"| change | networks | segments | first hover (≥ 50% at the success radius) by {', '.join(f'{m // 1000}k' for m in marks)} "
           f"| first mean final distance ≤ {near} m by the same | median steps to hover / near |")
     print("|---|---|---|---|---|---|")
-    for (wind, vehicle), w in ev.groupby(["wind", "vehicle"]):
+    for wind, w in ev.groupby("wind"):
         twin = w["agent"].str.endswith("_fresh")
         fresh, later = w[(w["segment"] == 0) & ~twin | (w["segment"] > 0) & twin], w[(w["segment"] > 0) & ~twin]
         for name, part in (("fresh (every segment 0, the twins' later ones)", fresh),
                            ("continual, after a change", later)):
             counts = [" / ".join(str(int((part[c] <= m).sum())) for m in marks) for c in ("hover_after", "near_after")]
-            print(f"| {wind if wind != 'none' else vehicle} | {name} | {len(part)} | {counts[0]} | {counts[1]} | "
+            print(f"| {wind} | {name} | {len(part)} | {counts[0]} | {counts[1]} | "
                   f"{part['hover_after'].median() / 1e3:.0f}k / {part['near_after'].median() / 1e3:.0f}k |")
 
 

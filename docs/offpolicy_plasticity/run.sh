@@ -3,7 +3,8 @@
 # TD3 (JAX) on the anchor's task, under a wind flip or a payload, against its fresh twin (twin=fresh).
 #
 #   docs/offpolicy_plasticity/run.sh pilot     # seeds 100,101 x flip, payload x continual, fresh twin; 4 x 500k (8 runs)
-#   docs/offpolicy_plasticity/run.sh report    # the report -> docs/offpolicy_plasticity/pilot
+#   docs/offpolicy_plasticity/run.sh transfer  # the continual pilot runs' final policies flown under other conditions
+#   docs/offpolicy_plasticity/run.sh report    # the report, fresh networks' learning times -> docs/offpolicy_plasticity/pilot
 #   docs/offpolicy_plasticity/run.sh stop      # stop a running phase (a re-run resumes: FINISHED jobs are skipped)
 #   docs/offpolicy_plasticity/run.sh export    # FINISHED runs -> docs/offpolicy_plasticity/runs (commit them)
 #   docs/offpolicy_plasticity/run.sh import    # the archive -> the store (re-make every table without training)
@@ -15,7 +16,7 @@ set -euo pipefail
 
 ROOT=$(cd "$(dirname "$0")/../.." && pwd)
 STUDY=${STUDY:-/work/studies/offpolicy}
-MAIN_COMMIT=${MAIN_COMMIT:-HEAD}
+MAIN_COMMIT=${MAIN_COMMIT:-22e3f4a}   # the pilot of 12-07
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/offpolicy_plasticity/runs
 export MLFLOW_TRACKING_URI=sqlite:///$STUDY/mlflow.db
@@ -39,7 +40,20 @@ case ${1:-} in
              sweep "pilot-$1" "${@:2}" seed=100,101                       # the continual agent
              sweep "pilot-$1-fresh" "${@:2}" seed=100,101 twin=fresh      # its fresh twin
            done ;;
-  report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment offpolicy-plasticity --out "$ROOT/docs/offpolicy_plasticity/pilot") ;;
+  transfer)  for spec in "still eval.wind_speed=0" "plus3 eval.wind_speed=3 eval.direction=[1,0,0]" \
+                        "minus3 eval.wind_speed=3 eval.direction=[-1,0,0]" "plus5 eval.wind_speed=5 eval.direction=[1,0,0]" \
+                        "minus5 eval.wind_speed=5 eval.direction=[-1,0,0]" "mass1 eval.wind_speed=0 eval.mass=1.0" \
+                        "mass15 eval.wind_speed=0 eval.mass=1.5" "mass2 eval.wind_speed=0 eval.mass=2.0" \
+                        "rotor07 eval.wind_speed=0 eval.rotor_efficiency=[0.7,1.0,1.0,1.0]" \
+                        "rotor05 eval.wind_speed=0 eval.rotor_efficiency=[0.5,1.0,1.0,1.0]"; do
+               set -- $spec   # the continual pilot runs' final policies flown under one fixed condition each
+               (cd "$STUDY" && "$PY" -m sweep.reevaluate --experiment offpolicy-plasticity --where agent=td3 --name "$1" \
+                  eval.condition=fixed "${@:2}")
+             done
+             (cd "$STUDY" && "$PY" "$ROOT/docs/offpolicy_plasticity/transfer.py") > "$ROOT/docs/offpolicy_plasticity/pilot/transfer.md" ;;
+  report)  (cd "$STUDY" && "$PY" -m sweep.report --experiment offpolicy-plasticity --out "$ROOT/docs/offpolicy_plasticity/pilot")
+           (cd "$STUDY" && "$PY" "$ROOT/docs/offpolicy_plasticity/fresh_networks.py") \
+             > "$ROOT/docs/offpolicy_plasticity/pilot/fresh_networks.md" ;;
   stop)    drivers=$(pgrep -f "offpolicy_plasticity/run.sh (pilot|main)" || true)
            sweeps=$(pgrep -f "sweep -m experiment=offpolicy_plasticity" || true)
            workers=$(for p in $sweeps; do pgrep -P "$p" || true; done)
@@ -50,5 +64,5 @@ case ${1:-} in
            echo "stopped: drivers" $drivers "| sweeps" $sweeps "| jobs" $workers ;;
   export)  (cd "$STUDY" && "$PY" -m sweep.archive export --experiment offpolicy-plasticity --out "$ARCHIVE/offpolicy-plasticity") ;;
   import)  for dir in "$ARCHIVE"/*/; do (cd "$STUDY" && "$PY" -m sweep.archive import "$dir"); done ;;
-  *) sed -n 2,13p "$0"; exit 2 ;;
+  *) sed -n 2,14p "$0"; exit 2 ;;
 esac
