@@ -82,11 +82,13 @@ def test_a_run_resets_at_each_change_and_resumes_exactly_across_one(name, store,
     assert history(resumed) == history(whole)
 
 
-def test_a_change_met_by_the_last_rollout_is_not_acted_on(store, tmp_path):
-    """Segments of 1,000 steps, rollouts of 512, 2,000 steps: the condition changes at the rollout ends 1,024 and
-    2,048, the second past the end of training. The run resets at the first only: at the second no training would
-    follow, and the final policy (the one evaluated and kept) would be a fresh draw."""
-    overrides = ["agent.learner=sb3", *RUN, "train.total_timesteps=2000", "wind.segment_steps=1000"]
+@pytest.mark.parametrize("total,segment", [(2000, 1000), (2048, 1024)])
+def test_a_change_met_by_the_last_rollout_is_not_acted_on(total, segment, store, tmp_path):
+    """Rollouts of 512: the condition changes at the rollout ends 1,024 and 2,048, the second at or past the end of
+    training (2,000 steps in segments of 1,000; exactly at it, 2,048 in segments of 1,024). The run resets at the
+    first only: at the second no training would follow, and the final policy (the one evaluated and kept) would be
+    a fresh draw."""
+    overrides = ["agent.learner=sb3", *RUN, f"train.total_timesteps={total}", f"wind.segment_steps={segment}"]
     client = MlflowClient(store)
     run_id = run(compose_cfg(overrides), tmp_path / "run")
     resets = [(m.step, m.value) for m in client.get_metric_history(run_id, "remedy/reset_all/resets")]

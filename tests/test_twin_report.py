@@ -158,9 +158,9 @@ def test_the_re_learning_distance_against_its_own_twin_on_hand_built_evaluations
     assert (tmp_path / "out" / "eval_distance_flip.png").exists()
 
 
-def test_without_logged_distances_no_distance_cells():
-    """Runs that did not log eval/final_distance during training (older stores): NaN distances, no distance
-    columns in relearning.md's table, no pairs."""
+def test_without_logged_distances_the_distances_are_nan():
+    """Runs that did not log eval/final_distance during training (older stores): the segments' distances and the
+    run's re-learning distance are NaN, its re-learning AUC as before."""
     from sweep.report import relearning
 
     histories = pd.DataFrame({"run_id": "a", "key": "eval/success_rate", "step": [100, 200, 300, 400],
@@ -188,3 +188,16 @@ def test_a_lower_is_better_interval_measure_draws_its_lowest_row_on_top():
     cut = intervals.estimates(wide, intervals.MEASURES["relearning_distance"], conds).set_index("agent")
     assert cut.loc["layer_norm", "low"] == 0.0 and cut.loc["layer_norm", "cut"]
     assert cut.loc["layer_norm", "high"] > 2.0 and not cut.loc["ppo", "cut"]
+
+
+def test_the_fresh_twins_are_left_out_of_the_reading_correlation():
+    """A twin's probe at a change reads its fresh draw (as reset_all's): only the continual runs are correlated."""
+    from sweep.report import relearning
+
+    agents = ["layer_norm"] * 3 + ["layer_norm_fresh"] * 3 + ["reset_all"] * 3
+    runs = pd.DataFrame({"run_id": [f"r{i}" for i in range(9)], "agent": agents, "wind": "flip",
+                         "condition": agents})
+    relearn = pd.DataFrame({"run_id": runs["run_id"], "relearning": np.linspace(0.1, 0.9, 9), "learned_first": 1.0})
+    readings = pd.DataFrame({"run_id": runs["run_id"], "probe_first": np.linspace(1.0, 0.2, 9)})
+    corr = relearning.reading_correlation(runs, relearn, readings).set_index("across")
+    assert corr.loc[relearning.ALL_RUNS, "n"] == 3 and corr.loc[relearning.ALL_RUNS, "rho"] == pytest.approx(-1.0)

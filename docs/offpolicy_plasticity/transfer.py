@@ -3,7 +3,8 @@ final policy of every continual pilot run flown under one fixed condition, sweep
 distance to the target (m) and crash share. The flip runs ended under -x 3 m/s (segment 3), the payload runs at mass
 x1.5 in still air. Run from the repo root against the study's store:
 
-    MLFLOW_TRACKING_URI=sqlite:////work/studies/offpolicy/mlflow.db .venv/bin/python docs/offpolicy_plasticity/transfer.py
+    MLFLOW_TRACKING_URI=sqlite:////work/studies/offpolicy/mlflow.db \
+        .venv/bin/python docs/offpolicy_plasticity/transfer.py
 """
 from __future__ import annotations
 

@@ -30,8 +30,9 @@ plasticity problem and no prior knowledge would do). ``reading_correlation`` ask
 ranks runs as their re-learning does: the probe (Lyle et al.'s fit to random targets, which needs no change of
 task) and the network's dormant, dead-tanh and saturated shares and weight norm at the changes. Spearman's rank
 correlation between a run's reading and its ``relearning``, across runs (agents x seeds), across the runs that
-learned segment 0 and across agents (seed means), with 95% bootstrap CIs. reset_all is left out of it: its remedy
-hook runs before the probe at every change, so its probe reads a freshly drawn network by construction.
+learned segment 0 and across agents (seed means), with 95% bootstrap CIs. reset_all and the fresh twins are left out
+of it (``fresh_draws``): their remedy hook runs before the probe at every change, so their probe reads a freshly
+drawn network by construction.
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from sweep.config import TWIN_SUFFIX
 from sweep.metrics import CURVES, PROBE
 from sweep.report import figures, stats
 from sweep.report.conditions import baseline_of
@@ -230,15 +232,22 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
     return numbers.reset_index(drop=True), display.reset_index(drop=True)
 
 
+def fresh_draws(agents: pd.Series) -> pd.Series:
+    """Whether each agent draws fresh networks at every change (reset_all and every fresh twin, ``<agent>_fresh``):
+    its probe at a change reads the fresh draw, and the networks it re-learns with are not the ones read."""
+    return (agents == REFERENCE) | agents.str.endswith(TWIN_SUFFIX)
+
+
 def reading_correlation(runs: pd.DataFrame, relearn: pd.DataFrame, readings: pd.DataFrame) -> pd.DataFrame:
     """Spearman's rho [95% CI] between each plasticity reading (plasticity_readings) and ``relearning``, per wind:
     across runs (agents x seeds), across the runs that learned the first segment (``learned_first``: does the
     reading still predict re-learning once "never learned at all" is out?) and across conditions (their seed
-    means); reset_all left out (its remedy hook runs before the probe at every change, so its probe reads a freshly
-    drawn network by construction, and its later networks are not the ones read). Every reading is one where
+    means); reset_all and the fresh twins left out (``fresh_draws``: their remedy hook runs before the probe at every
+    change, so their probe reads a freshly drawn network by construction, and their later networks are not the ones
+    read). Every reading is one where
     higher should mean less plastic (a worse fit to the probe's random targets, more dormant, dead or saturated
     units, larger weights), so a reading that predicts re-learning gives a negative rho."""
-    df = runs.loc[runs["agent"] != REFERENCE, ["run_id", "wind", "condition"]]
+    df = runs.loc[~fresh_draws(runs["agent"]), ["run_id", "wind", "condition"]]
     df = df.merge(relearn, on="run_id").merge(readings, on="run_id")
     rows = []
     for wind, dw in df.groupby("wind"):
@@ -361,8 +370,8 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
                              **{f"ρ across {a}": wide[a] for a in corr["across"].unique()}})
         text += ("\n\nDoes a plasticity reading predict re-learning? Spearman's rank correlation [95% CI] between a "
                  "run's reading and its re-learning AUC, across runs, across the "
-                 f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} left out (its probe at a change reads "
-                 "the freshly drawn network). The probe loss (plasticity/probe_loss: a copy of the policy fitted to "
+                 f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} and the fresh twins left out (their "
+                 "probe at a change reads the freshly drawn network). The probe loss (plasticity/probe_loss: a copy of the policy fitted to "
                  "random targets) at the first change and its mean over the run's readings; the policy network's "
                  "dormant, dead-tanh and saturated shares and the weight norm of the policy and value networks at "
                  "the changes (the last value logged "
@@ -373,7 +382,7 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
                  "runs).\n\n" + markdown(rhos.fillna("–")))
         written.append(out / "reading_correlation.csv")
         titles = {(wind, reading): _rho_title(g) for (wind, reading), g in corr.groupby(["wind", "reading"])}
-        written += figures.readings_scatter(scored[scored["agent"] != REFERENCE], READINGS, titles, conds, shown,
+        written += figures.readings_scatter(scored[~fresh_draws(scored["agent"])], READINGS, titles, conds, shown,
                                             out)
     (out / "relearning.md").write_text(text)
     return written
