@@ -170,8 +170,9 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
     for wind, cond, g in _ordered_groups(df, conds):
         dw = df[df["wind"] == wind]
         present = conds.table.loc[[c for c in conds.order if c in set(dw["condition"])]]
-        theirs = {name: dw.loc[dw["condition"] == other, "relearning"] if other is not None else None
-                  for name, other in ((a, baseline_of(present, cond, "agent", a)) for a in ("ppo", reference, *extra))}
+        others = {a: baseline_of(present, cond, "agent", a) for a in ("ppo", reference, *extra)}   # their conditions
+        theirs = {a: dw.loc[dw["condition"] == other, "relearning"] if other is not None else None
+                  for a, other in others.items()}
         mean, half, _ = stats.mean_t_ci(g["relearning"])
         delta = {a: stats.mean_diff_ci(g["relearning"], theirs[a]) if theirs[a] is not None else (np.nan,) * 3
                  for a in theirs}
@@ -184,10 +185,9 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         learned_first = g["learned_first"] == 1.0
         relearning_learned, relearning_learned_half, _ = stats.mean_t_ci(g.loc[learned_first, "relearning"])
         distance, distance_half, _ = stats.mean_t_ci(g["relearning_distance"])
-        theirs_distance = (dw.loc[dw["condition"] == baseline_of(present, cond, "agent", reference),
-                                  "relearning_distance"] if theirs[reference] is not None else None)
-        delta_distance = (stats.mean_diff_ci(g["relearning_distance"], theirs_distance)
-                          if theirs_distance is not None else (np.nan,) * 3)
+        delta_distance = (stats.mean_diff_ci(g["relearning_distance"],
+                                             dw.loc[dw["condition"] == others[reference], "relearning_distance"])
+                          if others[reference] is not None else (np.nan,) * 3)
         finals = [c for c in CURVES if c.final and c.final != "final_reward" and c.final in g]
         num = {**_identity(conds, cond, wind), "n_seeds": len(g), "later_segments": int(g["later_segments"].max()),
                "relearning": mean, "relearning_ci95": half,
@@ -371,7 +371,8 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
         text += ("\n\nDoes a plasticity reading predict re-learning? Spearman's rank correlation [95% CI] between a "
                  "run's reading and its re-learning AUC, across runs, across the "
                  f"{LEARNED_RUNS} and across agents (seed means), {REFERENCE} and the fresh twins left out (their "
-                 "probe at a change reads the freshly drawn network). The probe loss (plasticity/probe_loss: a copy of the policy fitted to "
+                 "probe at a change reads the freshly drawn network). The probe loss (plasticity/probe_loss: a copy "
+                 "of the policy fitted to "
                  "random targets) at the first change and its mean over the run's readings; the policy network's "
                  "dormant, dead-tanh and saturated shares and the weight norm of the policy and value networks at "
                  "the changes (the last value logged "

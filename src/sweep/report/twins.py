@@ -96,9 +96,9 @@ def segment_pairs(runs: pd.DataFrame, seg: pd.DataFrame, conds, pairs: dict) -> 
                 row.update({"auc_vs_twin": v["delta"], "auc_vs_twin_low": v["low"], "auc_vs_twin_high": v["high"],
                             "pairs": v["pairs"], "p_improve_over_twin": v["p"],
                             "p_improve_over_twin_low": v["p_low"], "p_improve_over_twin_high": v["p_high"]})
-                far = _paired(_by_seed(s, cond, "distance_auc"), _by_seed(other, twin, "distance_auc"), True)
-                row.update({"distance_vs_twin": far["delta"], "distance_vs_twin_low": far["low"],
-                            "distance_vs_twin_high": far["high"]})
+                far = stats.paired_diff_ci(_by_seed(s, cond, "distance_auc"), _by_seed(other, twin, "distance_auc"))
+                row.update({"distance_vs_twin": far[0], "distance_vs_twin_low": far[1],
+                            "distance_vs_twin_high": far[2]})
                 if k == 0:   # the same run: equal AUC, end success and (where logged) final distances
                     a, b = (pd.concat([_by_seed(frame, c, column) for column in SAME_RUN], axis=1, keys=SAME_RUN)
                             for frame, c in ((s, cond), (other, twin)))
