@@ -53,7 +53,7 @@ AGENTS_EXTRA=${AGENTS_EXTRA:-ppo,reset_all,layer_norm,l2_lr_decay_8m,l2_lr_decay
 # the runs part from there. Those commits predate twin=fresh, so the twin is composed as twin=fresh composes it: the
 # reset_all remedy switched on (every agent carries it there, off), named <agent>_fresh, labelled "<label> (fresh)".
 # twins.md's "Segment 0 the same run" column checks the pairing on every pair.
-TWINNED=layer_norm,layer_norm_l2_lr_decay_8m,l2_lr_decay,l2_lr_decay_8m,recom_l2_relative
+TWINNED=${TWINNED:-layer_norm,layer_norm_l2_lr_decay_8m,l2_lr_decay,l2_lr_decay_8m,recom_l2_relative}  # TWINNED=a,b: those only
 SEEDS16=0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15
 PY=${PYTHON:-$ROOT/.venv/bin/python}
 ARCHIVE=$ROOT/docs/plasticity_study/runs
