@@ -26,14 +26,15 @@ run: $(STAMP)  ## the main job: a few-minute demo (a drone learning to hover) of
 demo: run
 
 # Tests on every core (pytest-xdist), a test module per worker (--dist loadscope: its module fixtures, such as
-# test_report's trained store, are built once). `pytest tests/test_x.py` alone runs in one process.
+# test_report's trained store, are built once), the longest modules first (tests/conftest.py, LONGEST_FIRST; xdist
+# would order them by test count). `pytest tests/test_x.py` alone runs in one process.
 TEST_WORKERS ?= auto
 
 test: $(STAMP)
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope --no-loadscope-reorder
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -m slow -n $(TEST_WORKERS) --dist loadscope
+	$(PY) -m pytest -m slow -n $(TEST_WORKERS) --dist loadscope --no-loadscope-reorder
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench.py
