@@ -78,17 +78,22 @@ warm() {  # warm CODE OVERRIDES...: one short LayerNorm run of that code, under 
 sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's store and checkpoints; output under $STUDY
   local commit=$1 code=$STUDY/code-$1 name=$2; shift 2
   [ -d "$code" ] || git -C "$ROOT" worktree add --detach "$code" "$commit"
-  warm "$code" "$@"
+  [ -n "${WARMED:-}" ] || warm "$code" "$@"
   (cd "$STUDY" && PYTHONPATH=$code/src "$PY" -m sweep -m experiment=plasticity train.checkpoint_dir="$STUDY/ckpt" \
      hydra.sweep.dir="$STUDY/multirun/$name" "$@")
 }
-twins() {  # twins CHANGE CHANGE_OVERRIDES...: each TWINNED agent's fresh twin, seeds 0-15 (SEEDS), at its continual code
-  local change=$1 agent commit label; shift
+twins() {  # twins CHANGE CHANGE_OVERRIDES...: each TWINNED agent's fresh twin, seeds 0-15 (SEEDS), at its continual code,
+           # 2 seeds at a time, the FINISHED runs exported after each pair (a session's machine may not come back)
+  local change=$1 agent commit label seeds; shift
   for agent in ${TWINNED//,/ }; do
     commit=$MAIN_COMMIT; [ "$agent" != "$COMBO" ] || commit=$COMBO_COMMIT
     label=$(git -C "$ROOT" show "$commit:conf/agent/$agent.yaml" | sed -n 's/^label: //p')
-    sweep "$commit" "twins-$agent-$change" "$@" "seed=${SEEDS:-$SEEDS16}" "agent=$agent" \
-      agent.reset_all.enabled=true "agent.name=${agent}_fresh" "agent.label='$label (fresh)'"
+    for seeds in $(echo "${SEEDS:-$SEEDS16}" | sed -E 's/([^,]+,[^,]+),/\1 /g'); do
+      sweep "$commit" "twins-$agent-$change" "$@" "seed=$seeds" "agent=$agent" \
+        agent.reset_all.enabled=true "agent.name=${agent}_fresh" "agent.label='$label (fresh)'"
+      WARMED=1; "$0" export
+    done
+    WARMED=
   done
 }
 PILOT=(wind.segment_steps=4000000 train.total_timesteps=12000000 seed=0,1,2 tracking.experiment=plasticity-pilot)
