@@ -84,11 +84,15 @@ sweep() {  # sweep COMMIT NAME OVERRIDES...: that commit's code, the study's sto
 }
 twins() {  # twins CHANGE CHANGE_OVERRIDES...: each TWINNED agent's fresh twin, seeds 0-15 (SEEDS), at its continual code,
            # 2 seeds at a time, the FINISHED runs exported after each pair (a session's machine may not come back)
-  local change=$1 agent commit label seeds; shift
+  local change=$1 agent commit label seeds list todo seed; shift
   for agent in ${TWINNED//,/ }; do
     commit=$MAIN_COMMIT; [ "$agent" != "$COMBO" ] || commit=$COMBO_COMMIT
     label=$(git -C "$ROOT" show "$commit:conf/agent/$agent.yaml" | sed -n 's/^label: //p')
-    for seeds in $(echo "${SEEDS:-$SEEDS16}" | sed -E 's/([^,]+,[^,]+),/\1 /g'); do
+    list=${SEEDS:-$SEEDS16}
+    todo=$(for seed in ${list//,/ }; do   # the seeds whose twin the archive lacks: no import needed
+             compgen -G "$ARCHIVE/plasticity/${agent}_fresh-*$change-s$seed-*.npz" > /dev/null || echo -n "$seed,"
+           done)
+    for seeds in $(echo "${todo%,}" | sed -E 's/([^,]+,[^,]+),/\1 /g'); do
       sweep "$commit" "twins-$agent-$change" "$@" "seed=$seeds" "agent=$agent" \
         agent.reset_all.enabled=true "agent.name=${agent}_fresh" "agent.label='$label (fresh)'"
       WARMED=1; "$0" export
