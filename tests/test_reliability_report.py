@@ -12,7 +12,7 @@ import pytest
 from mlflow.entities import Metric, Param
 from mlflow.tracking import MlflowClient
 
-from sweep.report import reliability
+from sweep.report import reliability, stats
 
 START = 1_700_000_000_000   # ms
 K = 1000
@@ -65,7 +65,7 @@ def test_the_table_is_a_hand_count_with_censored_seeds_left_out(store, tmp_path)
     assert (a.loc[0.5, "reached_300k"], a.loc[0.5, "n_300k"]) == (0.25, 4)
     assert (a.loc[0.5, "reached_1M"], a.loc[0.5, "n_1M"]) == (pytest.approx(2 / 3), 3)
     assert (a.loc[0.5, "reached_3M"], a.loc[0.5, "n_3M"]) == (pytest.approx(2 / 3), 3)
-    lo, hi = reliability.wilson(2, 3)[1:]
+    lo, hi = stats.wilson(2, 3)[1:]
     assert (a.loc[0.5, "reached_1M_low"], a.loc[0.5, "reached_1M_high"]) == (pytest.approx(lo), pytest.approx(hi))
     assert lo == pytest.approx(0.2077, abs=1e-3) and hi == pytest.approx(0.9385, abs=1e-3)   # Wilson's, by hand
     assert a.loc[0.5, "median_steps"] == 500 * K   # 200k and 800k as scheduled

@@ -1768,6 +1768,12 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path, monkey
     assert learned_first["PPO"] == "1/2" and learned_first["L2 + PPO"] == "2/2"
     assert shown.loc["PPO", "Re-learning AUC, seeds that learned (%)"] == "56"
     assert shown.loc["L2 + PPO", "Re-learning AUC, seeds that learned (%)"] == "100 ± 0"
+    # of the runs that never learned segment 0: PPO's seed 1 never hovers later (0 of 1), reset_all's seed 1 does
+    assert (got.loc["ppo", "stuck_runs"], got.loc["ppo", "stuck_hovered_later"]) == (1, 0)
+    assert (got.loc["reset_all", "stuck_runs"], got.loc["reset_all", "stuck_hovered_later"]) == (1, 1)
+    assert got.loc["l2", "stuck_runs"] == 0 and np.isnan(got.loc["l2", "stuck_hovered_later_share"])
+    stuck = shown["Never learned segment 0: hovered later (runs) [95% CI]"]
+    assert stuck["PPO"] == "0/1 [0.00, 0.79]" and stuck["L2 + PPO"] == "–"
     corr = pd.read_csv(tmp_path / "out" / "reading_correlation.csv").set_index(["reading", "across"])
     within = corr.loc[("probe_first", "runs that learned segment 0")]
     probe, relearn = [0.010, 0.011, 0.030, 0.031, 0.050], [1.0, 1.0, 0.75, 0.75, 0.5625]

@@ -33,7 +33,8 @@ def test_paired_difference_is_the_mean_of_per_seed_differences():
 def test_each_agent_against_its_own_fresh_twin_on_hand_built_evaluations(tmp_path, monkeypatch):
     """LayerNorm re-learns 37.5 then 12.5% where its twin re-learns 100 and 62.5/37.5% (by seed): Δ -62.5 and
     -37.5 pp per segment, -50 pp on the re-learning AUC, P(> own twin) 0; PPO's twin is reset_all (Δ -6.25 pp);
-    ReDo's twin differs from it in segment 0 on seed 1 (1 of 2 pairs the same run)."""
+    ReDo's twin differs from it in segment 0 on seed 1 (1 of 2 pairs the same run), and that twin run, stuck in
+    segment 0, hovers later."""
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     log_segment_runs(MlflowClient(uri), "twins", [(a, segs, [], "current") for a, segs in TWIN_EVALS.items()])
     drawn = spy_figures(monkeypatch)
@@ -60,6 +61,10 @@ def test_each_agent_against_its_own_fresh_twin_on_hand_built_evaluations(tmp_pat
     assert shown.loc["layer_norm", "Δ vs reset_all (pp) [95% CI]"] == "-38 [-38, -38]"   # 25% vs 62.5%
     assert shown.loc["PPO", "Re-learning AUC Δ vs own twin (pp) [95% CI]"] == "-6 [-6, -6]"
     assert shown.loc["layer_norm", "segment 1: Δ (pp)"] == "-62 [-62, -62]"
+    # stuck from the start: ReDo's twin's seed 1 never hovers in segment 0 and hovers in segment 1 (1 of 1, Wilson's
+    # [0.21, 1]); every ReDo run learned segment 0 (no such runs: "–")
+    assert shown.loc["redo", "…, own twin"] == "1/1 [0.21, 1.00]"
+    assert shown.loc["redo", "Never learned segment 0: hovered later, agent"] == "–"
 
     panels = drawn["twins"]["panels"]   # the AUC per segment, then the paired Δ (in points)
     assert list(panels[0]["curves"]["layer_norm"]) == pytest.approx([62.5, 37.5, 12.5])

@@ -22,7 +22,9 @@ per-segment eval-success AUCs:
   seed: a seed whose network never learned has lost no plasticity, it never had the skill. So the table also
   reads ``relearning`` over the seeds that learned, each reading's correlation within those runs, and
   ``segment_gains`` per segment over them. (reset_all's later segments are fresh networks, so over its seeds that
-  learned they read how often a fresh draw re-learns on those seeds.)
+  learned they read how often a fresh draw re-learns on those seeds.) The other side, ``stuck_later``: of the runs
+  that never learned segment 0, how many hover in some later segment (k of n, Wilson 95% CI): does a network that
+  failed its first condition ever learn one afterwards? A fresh network at every change gets a new draw each time.
 
 ``table`` ranks the agents on ``relearning`` with P(> PPO) and P(> reset_all) (rliable's probability of
 improvement) and the difference to reset_all (a fresh network at every change: what an agent that keeps no
@@ -184,6 +186,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         learned, learned_half, _ = stats.mean_t_ci(g["learned_share"])
         learned_first = g["learned_first"] == 1.0
         relearning_learned, relearning_learned_half, _ = stats.mean_t_ci(g.loc[learned_first, "relearning"])
+        stuck = stuck_later(g)
         distance, distance_half, _ = stats.mean_t_ci(g["relearning_distance"])
         delta_distance = (stats.mean_diff_ci(g["relearning_distance"],
                                              dw.loc[dw["condition"] == others[reference], "relearning_distance"])
@@ -198,7 +201,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                "first_auc": first, "first_auc_ci95": first_half, "relearning_end": end, "relearning_end_ci95": end_half,
                "learned_share": learned, "learned_share_ci95": learned_half,
                "learned_first_seeds": int(learned_first.sum()), "relearning_if_learned": relearning_learned,
-               "relearning_if_learned_ci95": relearning_learned_half,
+               "relearning_if_learned_ci95": relearning_learned_half, **stuck,
                "hover_after_median": float(g["hover_after"].median()),
                "relearning_distance": distance, "relearning_distance_ci95": distance_half,
                **{f"distance_delta_vs_{reference}{suffix}": delta_distance[i]
@@ -215,6 +218,7 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
                  "Learned segment 0 (seeds)": f"{int(learned_first.sum())}/{int(g['learned_first'].notna().sum())}",
                  "Re-learning AUC, seeds that learned (%)": plus_minus(100 * relearning_learned,
                                                                        100 * relearning_learned_half, 0),
+                 STUCK_COLUMN: stuck_cell(stuck),
                  "First segment AUC (%)": plus_minus(100 * first, 100 * first_half, 0),
                  "Success at segment ends (%)": plus_minus(100 * end, 100 * end_half, 0),
                  "Segments hovered (%)": plus_minus(100 * learned, 100 * learned_half, 0),
@@ -230,6 +234,27 @@ def table(runs: pd.DataFrame, per_run: pd.DataFrame, relearn: pd.DataFrame, cond
         order = numbers.sort_values(["wind", "relearning"], ascending=[True, False], kind="stable").index
         numbers, display = numbers.loc[order], display.loc[order]
     return numbers.reset_index(drop=True), display.reset_index(drop=True)
+
+
+STUCK_COLUMN = "Never learned segment 0: hovered later (runs) [95% CI]"
+
+
+def stuck_later(per_run: pd.DataFrame) -> dict[str, float]:
+    """Of ``per_run``'s runs that never learned segment 0 (``learned_first`` 0), ``stuck_runs``, how many hovered in
+    some later segment (``stuck_hovered_later``: ``learned_share`` > 0) and that share with its Wilson 95% CI."""
+    never = per_run[per_run["learned_first"] == 0.0]
+    k, n = int((never["learned_share"] > 0).sum()), len(never)
+    share, low, high = stats.wilson(k, n)
+    return {"stuck_runs": n, "stuck_hovered_later": k, "stuck_hovered_later_share": share,
+            "stuck_hovered_later_low": low, "stuck_hovered_later_high": high}
+
+
+def stuck_cell(v) -> str:
+    """'k/n [low, high]' of stuck_later's numbers (a dict or a row), '–' without such runs."""
+    if not v["stuck_runs"]:
+        return "–"
+    return (f"{int(v['stuck_hovered_later'])}/{int(v['stuck_runs'])} "
+            f"[{v['stuck_hovered_later_low']:.2f}, {v['stuck_hovered_later_high']:.2f}]")
 
 
 def fresh_draws(agents: pd.Series) -> pd.Series:
@@ -350,6 +375,9 @@ def write(runs: pd.DataFrame, per_run: pd.DataFrame, histories: pd.DataFrame, ev
             "segments hovered = the share of the later segments with an evaluation at >= 50% success; learned "
             "segment 0 = the seeds whose first segment had such an evaluation (learned the hover from scratch), and "
             "the re-learning AUC over those seeds alone (a seed that never learned has no plasticity to lose); "
+            "never learned segment 0: hovered later = of the runs that did not learn segment 0, how many reach "
+            "an evaluation at >= 50% success in some later segment (k/n, Wilson 95% CI; a fresh network at every "
+            "change draws anew at each); "
             "steps to hover = the timesteps from a change to that evaluation (median over the runs' medians); "
             "re-learning distance = the same mean over the later segments of the evaluations' mean final distance "
             "to the target (m, lower is better: the continuous reading of the same flights, where runs logged it), "

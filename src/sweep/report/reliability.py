@@ -30,22 +30,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib import pyplot as plt
-from scipy.stats import binomtest
 
 from sweep.report import load, style
+from sweep.report.stats import wilson
 from sweep.report.tables import markdown
 
 THRESHOLDS = (0.5, 0.9)
 BUDGETS = (300_000, 1_000_000, 3_000_000)
 SUCCESS = "eval/success_rate"
-
-
-def wilson(k: int, n: int) -> tuple[float, float, float]:
-    """(share, low, high): k of n with the Wilson 95% interval (NaN for n = 0)."""
-    if n == 0:
-        return np.nan, np.nan, np.nan
-    ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
-    return k / n, ci.low, ci.high
 
 
 def steps_label(n: int) -> str:

@@ -10,6 +10,7 @@ Statistics used (all over seeds; a seed is one run):
   both conditions' runs resampled independently;
 * difference to a paired condition (an agent and its fresh twin, the same seeds): the mean of the per-seed
   differences, 95% percentile-bootstrap CI resampling the pairs;
+* a share of runs (k of n, e.g. the runs that hover): the Wilson 95% score interval (``scipy.stats.binomtest``);
 * probability of improvement: rliable's ``metrics.probability_of_improvement`` (Mann-Whitney U / (n_x n_y)),
   with a 95% CI from independent bootstrap resampling of both agents' runs.
 
@@ -40,6 +41,14 @@ def _bootstrap(data: tuple, statistic, **kwargs):
         warnings.simplefilter("ignore")  # degenerate resamples (identical seeds) -> a zero-width interval
         return stats.bootstrap(data, statistic, n_resamples=RESAMPLES, method="percentile",
                                confidence_level=0.95, rng=np.random.default_rng(RNG_SEED), **kwargs)
+
+
+def wilson(k: int, n: int) -> tuple[float, float, float]:
+    """(share, low, high): k of n with the Wilson 95% interval (NaN for n = 0)."""
+    if n == 0:
+        return np.nan, np.nan, np.nan
+    ci = stats.binomtest(int(k), int(n)).proportion_ci(0.95, method="wilson")
+    return k / n, ci.low, ci.high
 
 
 def _iqm(x, axis=-1):

@@ -12,6 +12,9 @@ change. So the twin's runs pair with the agent's by seed, exactly, and per agent
 * the same for the re-learning distance (relearning.per_run's ``relearning_distance``: the evaluations' mean final
   distance to the target over the later segments, metres, lower is better) where the runs logged it: paired Δ vs
   own twin [CI] and P(nearer than own twin) [CI], the continuous reading of the same flights;
+* the runs stuck from the start (relearning.stuck_later): of the agent's runs and of its twin's that never learned
+  segment 0, how many hover in a later segment [Wilson CI]: a continual network that failed its first condition
+  against fresh networks of its kind;
 * segment 0: how many pairs flew it identically (equal AUC, end success and, where logged, final distances). It
   should be all of them; a pair that differs ran other code or settings, and the report says so.
 
@@ -25,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from sweep.config import TWIN_SUFFIX
-from sweep.report import figures, stats
+from sweep.report import figures, relearning, stats
 from sweep.report.conditions import baseline_of
 from sweep.report.highlight import Highlight
 from sweep.report.tables import _identity, _ordered_groups, interval, markdown, provenance
@@ -112,9 +115,10 @@ def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: di
     """Per agent x wind of ``pairs``: the re-learning AUC's paired Δ vs its own twin [CI], P(> twin) [CI], Δ vs
     reset_all [CI] (unpaired: other networks on the same seeds) where reset_all ran, and the re-learning
     distance's paired Δ vs its twin [CI] and P(nearer than twin) [CI] over ``distance_pairs`` pairs (0: not
-    logged)."""
+    logged), and for the agent and (``twin_``) its twin relearning.stuck_later: of the runs that never learned
+    segment 0, how many hovered later [Wilson CI]."""
     df = runs[["run_id", "wind", "condition", "seed"]].merge(
-        relearn[["run_id", "relearning", "relearning_distance"]], on="run_id")
+        relearn[["run_id", "relearning", "relearning_distance", "learned_first", "learned_share"]], on="run_id")
     rows = []
     for (wind, cond), twin in pairs.items():
         here = df[df["wind"] == wind]
@@ -131,7 +135,9 @@ def relearning_pairs(runs: pd.DataFrame, relearn: pd.DataFrame, conds, pairs: di
                      f"relearning_vs_{REFERENCE}_high": r[2], "distance_pairs": far["pairs"],
                      "distance_vs_twin": far["delta"], "distance_vs_twin_low": far["low"],
                      "distance_vs_twin_high": far["high"], "p_nearer_than_twin": far["p"],
-                     "p_nearer_than_twin_low": far["p_low"], "p_nearer_than_twin_high": far["p_high"]})
+                     "p_nearer_than_twin_low": far["p_low"], "p_nearer_than_twin_high": far["p_high"],
+                     **relearning.stuck_later(here[here["condition"] == cond]),
+                     **{f"twin_{k}": v for k, v in relearning.stuck_later(here[here["condition"] == twin]).items()}})
     return pd.DataFrame(rows)
 
 
@@ -162,7 +168,9 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
                 "P(> own twin) [95% CI]": interval(v["p_improve_over_twin"], v["p_improve_over_twin_low"],
                                                    v["p_improve_over_twin_high"], 2),
                 f"Δ vs {REFERENCE} (pp) [95% CI]": interval(*(100 * v[f"relearning_vs_{REFERENCE}{s}"]
-                                                             for s in ("", "_low", "_high")), 0)})
+                                                             for s in ("", "_low", "_high")), 0),
+                "Never learned segment 0: hovered later, agent": relearning.stuck_cell(v),
+                "…, own twin": relearning.stuck_cell({k[5:]: x for k, x in v.items() if k.startswith("twin_")})})
             if v["distance_pairs"]:
                 row.update({
                     "Re-learning distance Δ vs own twin (m) [95% CI]": interval(
@@ -185,7 +193,10 @@ def write(runs: pd.DataFrame, seg: pd.DataFrame, relearn: pd.DataFrame, conds, s
             f"probability of improvement [95% bootstrap CI]; Δ vs {REFERENCE} as in relearning.md (unpaired). Where "
             "the runs logged the evaluations' final distance: the re-learning distance's Δ vs own twin (the mean "
             "final distance to the target over the later segments' evaluations, metres, paired likewise; negative: "
-            "the agent flies nearer than its twin) and P(nearer than own twin).\n\n"
+            "the agent flies nearer than its twin) and P(nearer than own twin). Never learned segment 0: hovered later "
+            "= of the runs with no evaluation at >= 50% success in segment 0, how many reach one in a later segment "
+            "(k/n, Wilson 95% CI), the agent's runs and its twin's (a network that failed its first condition: "
+            "does it ever learn one, kept or drawn afresh?).\n\n"
             + markdown(pd.DataFrame(display).fillna("–")))
     (out / "twins.md").write_text(text)
     coloured = {}   # every agent and twin of the figure in colour, however many agents the report has
