@@ -47,14 +47,15 @@ def env_with(uri: str) -> dict:
     return {**os.environ, "MLFLOW_TRACKING_URI": uri, "HYDRA_FULL_ERROR": "0"}
 
 
-def run_report(store: str, out: Path, *args: str) -> tuple[int, str, str]:
-    """(exit code, stdout, stderr) of one in-process report run."""
+def run_report(store: str, out: Path, *args: str, draft: bool = True) -> tuple[int, str, str]:
+    """(exit code, stdout, stderr) of one in-process report run; ``draft`` (--draft, PNG only at 100 dpi) unless a
+    test reads the figures' files as the paper gets them (sizes in pixels at 300 dpi, the PDFs)."""
     mp = pytest.MonkeyPatch()
     mp.setenv("MLFLOW_TRACKING_URI", store)
     stdout, stderr = io.StringIO(), io.StringIO()
     try:
         with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            code = main(["--out", str(out), *args])
+            code = main(["--out", str(out), *args, *(["--draft"] if draft else [])])
     finally:
         mp.undo()
     return code, stdout.getvalue(), stderr.getvalue()
@@ -77,7 +78,7 @@ def store(tmp_path_factory) -> str:
 def report(store, tmp_path_factory):
     """(output dir, stdout) of the report split by the L2 coefficient, with PPO as the baseline."""
     out = tmp_path_factory.mktemp("report")
-    code, stdout, stderr = run_report(store, out, "--experiment", EXPERIMENT, *BY)
+    code, stdout, stderr = run_report(store, out, "--experiment", EXPERIMENT, *BY, draft=False)
     assert code == 0, stdout + stderr
     return out, stdout
 
@@ -86,7 +87,7 @@ def report(store, tmp_path_factory):
 def hand_report(store, tmp_path_factory):
     """(output dir, stdout) of the report of the hand-logged experiment."""
     out = tmp_path_factory.mktemp("hand")
-    code, stdout, stderr = run_report(store, out, "--experiment", HAND)
+    code, stdout, stderr = run_report(store, out, "--experiment", HAND, draft=False)
     assert code == 0, stdout + stderr
     return out, stdout
 
@@ -317,8 +318,8 @@ def md_table(path: Path, which: int = 0) -> pd.DataFrame:
 
 
 def figure_stems(out: Path) -> set[str]:
-    pngs = {p.stem for p in out.glob("*.png")}
-    assert pngs == {p.stem for p in out.glob("*.pdf")}
+    pngs, pdfs = {p.stem for p in out.glob("*.png")}, {p.stem for p in out.glob("*.pdf")}
+    assert pdfs in (pngs, set())   # every figure in both, or a --draft report: PNG only
     return pngs
 
 
@@ -886,7 +887,7 @@ def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, mo
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     log_many_agents(MlflowClient(uri), "many")
     drawn = spy_legends(monkeypatch)
-    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many", draft=False)
     assert code == 0, stdout + stderr
     assert CURVE_STEMS <= set(drawn)
     top = [MANY[a] for a in MANY_RANKED[:3]]
@@ -932,7 +933,7 @@ def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatc
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     log_reading_runs(MlflowClient(uri), "readings")
     drawn = spy_figures(monkeypatch)
-    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings", draft=False)
     assert code == 0, stdout + stderr
     figure = drawn["dormant_paper"]
     panels = figure["panels"]
@@ -1343,7 +1344,7 @@ def test_twelve_agents_in_two_layouts_give_small_multiples_ranked_intervals_and_
     log_arms(MlflowClient(uri), "arms")
     drawn = spy_panels(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "arms", "--by", "env.n_envs",
-                                      "--highlight", "layer_norm")
+                                      "--highlight", "layer_norm", draft=False)
     assert code == 0, stdout + stderr
     labels = {a: conditions.agent_labels(load_arm_runs(uri)).get(a, a) for a in ARM_AGENTS}
     one, sixteen = drawn["interval_keeps_hovering"]["axes"]
@@ -1594,6 +1595,18 @@ def test_a_final_evaluation_past_the_run_under_the_next_condition_is_left_out():
         assert got.loc[0, "auc"] == 0.625
 
 
+def test_a_draft_report_writes_its_figures_as_png_only_at_100_dpi(tmp_path):
+    """--draft: the same figures, PNG only, a third of the paper's resolution (a one-column figure ~3.5 in wide)."""
+    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    log_segment_runs(MlflowClient(uri), "draft", [(a, segs, probe, "current") for a, (segs, probe) in
+                                                  RELEARN_EVALS.items()])
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "draft")
+    assert code == 0, stdout + stderr
+    out = tmp_path / "out"
+    assert not list(out.glob("*.pdf")) and {"segment_scores", "eval_success_flip"} <= {p.stem for p in out.glob("*.png")}
+    assert 250 <= image.imread(out / "eval_success_flip.png").shape[1] <= 400
+
+
 def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, monkeypatch):
     """Two changes in one experiment (a wind flip, a payload in still air): one segment_scores figure two columns
     wide, each change's numbers in the table under its own arm."""
@@ -1603,7 +1616,7 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, mon
     runs = [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()]
     log_segment_runs(client, "two", runs)
     log_segment_runs(client, "two", runs, wind="none", vehicle="payload")
-    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "two")
+    code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "two", draft=False)
     assert code == 0, stdout + stderr
     got = pd.read_csv(tmp_path / "out" / "segment_scores.csv")
     assert set(got["wind"]) == {"flip", "none+payload"}
@@ -1616,7 +1629,7 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, mon
     # re-made from the same runs, every file has the same bytes (PDFs carry no creation date): a committed report
     # changes only where its numbers do
     time.sleep(1.1)
-    code, stdout, stderr = run_report(uri, tmp_path / "again", "--experiment", "two")
+    code, stdout, stderr = run_report(uri, tmp_path / "again", "--experiment", "two", draft=False)
     assert code == 0, stdout + stderr
     made = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert made == sorted(p.name for p in (tmp_path / "again").iterdir())

@@ -4,7 +4,7 @@ Interval-estimate figures first (intervals.py): interval_keeps_hovering, interva
 interval_success_best, interval_final_reward, one panel per arm (wind x --by values). The curves below draw a
 --by split as small multiples (conditions.Conditions.panels) and, with more than 6 agents in a panel, only the
 --top agents of each panel, PPO and --highlight agents in colour (highlight.py).
-Figures (PNG + PDF) per training wind W: reward_W, episode_length_W, dormant_W (the policy's readings, a panel
+Figures (PNG + PDF; --draft: PNG only, at 100 dpi) per training wind W: reward_W, episode_length_W, dormant_W (the policy's readings, a panel
 each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean ≈ 0, saturated
 activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
 learning_rate_W, eval_success_W, eval_crash_W and eval_distance_W (only if runs evaluated during training,
@@ -34,7 +34,7 @@ import numpy as np
 
 def build(experiment: str | None, sweep: str | None, out: str | None, by: list[str] = (),
           baseline: str | None = None, at: list[int] = (), agents: list[str] = (), vs: list[str] = (),
-          highlight: list[str] = (), top: int = 3) -> Path:
+          highlight: list[str] = (), top: int = 3, draft: bool = False) -> Path:
     from mlflow.exceptions import MlflowException
 
     from sweep import metrics
@@ -91,7 +91,7 @@ def build(experiment: str | None, sweep: str | None, out: str | None, by: list[s
         lacking = runs.loc[~runs["run_id"].isin(histories.loc[histories["key"] == key, "run_id"]), "run_name"]
         if len(lacking):
             print(f"sweep.report: missing: {key} history in {', '.join(lacking)}")
-    style.apply()
+    style.apply(draft)
     per_run, late = stats.per_run_curve_stats(histories), stats.late_evaluations(histories)
     evals = stats.segment_evaluations(histories, runs)
     relearn = relearning.per_run(evals, runs)   # runs evaluated under the condition being learned, after a change
@@ -196,12 +196,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--top", type=int, default=3, metavar="N",
                         help="with more than 6 agents in a panel, the N best of each panel by the leaderboard's "
                              "primary measure are drawn in colour (default 3)")
+    parser.add_argument("--draft", action="store_true",
+                        help="figures as PNG only at 100 dpi (about 3x faster): a quick look at a study; without "
+                             "it, PNG at 300 dpi and PDF for the paper")
     args = parser.parse_args(argv)
     from sweep.report.load import ReportError
 
     try:
         out = build(args.experiment, args.sweep, args.out, args.by, args.baseline, args.at, args.agents, args.vs,
-                    args.highlight, args.top)
+                    args.highlight, args.top, args.draft)
     except ReportError as err:
         print(f"sweep.report: {err}", file=sys.stderr)
         return 1

@@ -29,9 +29,10 @@ POSITION_COLUMNS = 4  # conditions side by side in eval_position_axes
 
 
 def save(fig, out: Path, stem: str) -> list[Path]:
-    """``stem``.png and .pdf; the PDF without a creation date, so that re-making a report from the same runs writes
-    the same bytes (a committed report changes only where its numbers do)."""
-    paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
+    """``stem``.png and .pdf (style.formats: only the PNG with --draft); the PDF without a creation date, so that
+    re-making a report from the same runs writes the same bytes (a committed report changes only where its numbers
+    do)."""
+    paths = [out / f"{stem}.{suffix}" for suffix in style.formats]
     for p in paths:
         fig.savefig(p, bbox_inches="tight", pad_inches=0.02,
                     metadata={"CreationDate": None} if p.suffix == ".pdf" else None)
