@@ -19,7 +19,8 @@ progress listing (which prints each run's per-segment success), the test on the 
 
 It reads the report's relearning_runs.csv (every run's measures and readings), as sweep.report computes them at
 abe3d96 (learned_first, the readings at the changes, spearman_ci's resamples and seed); later edits of this file
-change its wording only. The flip's row is the reading that suggested the test, not a test. Run from the repo root
+change its wording only, but one: the fresh twins (``<agent>_fresh``, issue 56, run after the test was fixed) are
+fresh networks at every change as reset_all is, and are left out with it. The flip's row is the reading that suggested the test, not a test. Run from the repo root
 on a report folder:
 
     .venv/bin/python docs/plasticity_study/weight_norm.py docs/plasticity_study/main
@@ -29,6 +30,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from sweep.config import TWIN_SUFFIX
 from sweep.report.relearning import spearman_ci
 from sweep.report.tables import interval, markdown
 
@@ -38,7 +40,8 @@ READING = "weight_norm_at_changes"
 
 def test(runs: pd.DataFrame) -> pd.DataFrame:
     """Per change (wind): n, rho and its CI over the learned runs of the agents not LEFT_OUT, and the verdict."""
-    kept = runs[(runs["learned_first"] == 1.0) & ~runs["agent"].isin(LEFT_OUT)]
+    kept = runs[(runs["learned_first"] == 1.0) & ~runs["agent"].isin(LEFT_OUT)
+                & ~runs["agent"].str.endswith(TWIN_SUFFIX)]
     rows = []
     for wind, change in kept.groupby("wind"):
         rho, low, high, n = spearman_ci(change[READING], change["relearning"])
@@ -54,7 +57,7 @@ def main(folder: Path) -> None:
     table = test(runs)
     print("Larger weights at the changes, worse re-learning? Spearman's ρ between the weight norm at the changes and "
           "the re-learning AUC, within the runs that learned segment 0, every agent but " + ", ".join(LEFT_OUT)
-          + " (docs/plasticity_study/weight_norm.py). Confirmed if the 95% CI lies below 0.\n")
+          + " and the fresh twins (docs/plasticity_study/weight_norm.py). Confirmed if the 95% CI lies below 0.\n")
     print(markdown(table))
 
 
