@@ -5,8 +5,8 @@ interval_success_best, interval_final_reward, one panel per arm (wind x --by val
 --by split as small multiples (conditions.Conditions.panels) and, with more than 6 agents in a panel, only the
 --top agents of each panel, PPO and --highlight agents in colour (highlight.py).
 Figures (PNG + PDF; --draft: PNG only, at 100 dpi) per training wind W: reward_W, episode_length_W, dormant_W (the
-policy's readings, a panel each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean ≈ 0, saturated
-activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
+policy's readings, a panel each: Sokar's dormant share at plasticity.tau and at 0.1, dead tanh units, signed mean
+≈ 0, saturated activations; those the runs logged), weight_norm_W, ppo_update_W (policy std, approx KL, clip fraction),
 learning_rate_W, eval_success_W, eval_crash_W and eval_distance_W (only if runs evaluated during training,
 eval.every_timesteps > 0); eval_flights_3d and eval_position_axes (the final policy's flights; the best policy's
 where no run evaluated its final policy). Tables: table3.{md,tex,csv} (evaluation under wind of the final policy
