@@ -20,8 +20,8 @@ progress listing (which prints each run's per-segment success), the test on the 
 It reads the report's relearning_runs.csv (every run's measures and readings), as sweep.report computes them at
 abe3d96 (learned_first, the readings at the changes, spearman_ci's resamples and seed); later edits of this file
 change its wording only, but one: the fresh twins (``<agent>_fresh``, issue 56, run after the test was fixed) are
-fresh networks at every change as reset_all is, and are left out with it. The flip's row is the reading that suggested the test, not a test. Run from the repo root
-on a report folder:
+fresh networks at every change as reset_all is, and are left out with it (relearning.fresh_draws). The flip's row is
+the reading that suggested the test, not a test. Run from the repo root on a report folder:
 
     .venv/bin/python docs/plasticity_study/weight_norm.py docs/plasticity_study/main
 """
@@ -30,8 +30,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from sweep.config import TWIN_SUFFIX
-from sweep.report.relearning import spearman_ci
+from sweep.report.relearning import fresh_draws, spearman_ci
 from sweep.report.tables import interval, markdown
 
 LEFT_OUT = ("reset_all", "layer_norm", "layer_norm_l2_lr_decay_8m", "shrink_perturb")
@@ -40,8 +39,7 @@ READING = "weight_norm_at_changes"
 
 def test(runs: pd.DataFrame) -> pd.DataFrame:
     """Per change (wind): n, rho and its CI over the learned runs of the agents not LEFT_OUT, and the verdict."""
-    kept = runs[(runs["learned_first"] == 1.0) & ~runs["agent"].isin(LEFT_OUT)
-                & ~runs["agent"].str.endswith(TWIN_SUFFIX)]
+    kept = runs[(runs["learned_first"] == 1.0) & ~runs["agent"].isin(LEFT_OUT) & ~fresh_draws(runs["agent"])]
     rows = []
     for wind, change in kept.groupby("wind"):
         rho, low, high, n = spearman_ci(change[READING], change["relearning"])
