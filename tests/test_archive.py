@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from mlflow.tracking import MlflowClient
 
-from conftest import TINY, compose_cfg
+from conftest import TINY, compose_cfg, new_store
 from sweep.archive import archive_files, export, import_, load, main, thin
 from sweep.run import run
 from sweep.tracking import ARCHIVED_FROM
@@ -24,7 +24,7 @@ def test_thin_keeps_first_last_and_at_most_max_points():
 
 
 def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monkeypatch, capsys):
-    source, target = f"sqlite:///{tmp_path / 'a.db'}", f"sqlite:///{tmp_path / 'b.db'}"
+    source, target = new_store(tmp_path / "a.db"), new_store(tmp_path / "b.db")
     overrides = ["agent=recom_l2", "seed=4", "wind=paper", *TINY]
     monkeypatch.setenv("MLFLOW_TRACKING_URI", source)
     original_id = run(compose_cfg(overrides), tmp_path / "job_a")
@@ -66,7 +66,7 @@ def test_export_import_round_trip_and_resume_skips_imported_runs(tmp_path, monke
 
 
 def test_cli_errors_name_the_problem(tmp_path, capsys):
-    uri = f"sqlite:///{tmp_path / 'empty.db'}"
+    uri = new_store(tmp_path / "empty.db")
     assert main(["export", "--experiment", "nope", "--out", str(tmp_path / "x"), "--uri", uri]) == 2
     assert "no experiment 'nope'" in capsys.readouterr().err
     assert main(["import", str(tmp_path / "missing.npz"), "--uri", uri]) == 2

@@ -10,7 +10,7 @@ import yaml
 from hydra.utils import get_class
 from mlflow.tracking import MlflowClient
 
-from conftest import CONF, compose_cfg, run_cli
+from conftest import CONF, compose_cfg, new_store, run_cli
 from sweep.training.hooks import build_hooks
 from sweep.config import ConfigError, validate
 
@@ -156,7 +156,7 @@ def test_invalid_value_is_named(override, expected):
 
 
 def test_cli_invalid_value_one_line_no_run(tmp_path: Path):
-    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    uri = new_store(tmp_path / "x.db")
     proc = run_cli(["train.total_timesteps=-5", f"hydra.run.dir={tmp_path / 'out'}"], uri, tmp_path)
     assert proc.returncode == 2
     errors = [line for line in proc.stderr.splitlines() if line.startswith("sweep:")]

@@ -25,7 +25,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.utils import configure_logger
 
-from conftest import compose_cfg
+from conftest import compose_cfg, new_store
 from sweep.agents import build_learner
 from sweep.agents import rollout as compiled
 from sweep.agents.jax_ppo import JaxPPO, ppo_loss
@@ -337,7 +337,7 @@ def test_learning_curves_are_equivalent(tmp_path):
     from conftest import run_cli
     from sweep.report.__main__ import main as report
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     proc = run_cli(["-m", "experiment=equivalence", "train.total_timesteps=1000000", "tracking.experiment=equiv",
                     f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path, timeout=3 * 3600)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -5,7 +5,7 @@ import sqlite3
 
 from mlflow.tracking import MlflowClient
 
-from conftest import TINY, run_cli
+from conftest import TINY, new_store, run_cli
 
 PLASTICITY = ["plasticity/dormant_ratio", "plasticity/dormant_ratio_layer0", "plasticity/dormant_ratio_layer1",
               "plasticity/value_dormant_ratio", "plasticity/saturated_ratio", "plasticity/weight_norm",
@@ -18,7 +18,7 @@ def runs_of(uri):
 
 
 def test_two_job_multirun_writes_two_runs_into_one_fresh_store(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'fresh.db'}"
+    uri = f"sqlite:///{tmp_path / 'fresh.db'}"  # the store's first creation, not new_store's copy
     proc = run_cli(["-m", "agent=ppo", "seed=0,1", "wind=paper", "wind.segment_steps=512", *TINY,
                     f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=2"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -43,7 +43,7 @@ def test_two_job_multirun_writes_two_runs_into_one_fresh_store(tmp_path):
 
 
 def test_three_agents_log_every_metric(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    uri = new_store(tmp_path / "x.db")
     proc = run_cli(["-m", "agent=ppo,l2,recom_l2", "seed=0", "wind.segment_steps=512",
                     "train.total_timesteps=2048", "agent.ppo.n_steps=512", "eval.episodes=2",
                     "++agent.recom.interval=512", f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=2"],

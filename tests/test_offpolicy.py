@@ -9,7 +9,7 @@ import pytest
 import torch
 from stable_baselines3.common.utils import configure_logger
 
-from conftest import compose_cfg
+from conftest import compose_cfg, new_store
 from sweep.agents import build_learner
 from sweep.agents.learner import Learner
 from sweep.agents.networks import fresh_parameters
@@ -480,7 +480,7 @@ def test_learning_curves_of_sb3_and_jax_are_equivalent(tmp_path):
     from conftest import run_cli
     from sweep.report.__main__ import main as report
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     proc = run_cli(["-m", "experiment=equivalence_offpolicy", "tracking.experiment=equiv",
                     f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path, timeout=3 * 3600)
     assert proc.returncode == 0, proc.stderr[-3000:]

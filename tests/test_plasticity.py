@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import compose_cfg, train_with
+from conftest import compose_cfg, new_store, train_with
 from sweep.agents import build_learner
 from sweep.envs import HoverVecEnv, WindSchedule
 from sweep.plasticity.dormant import dormant_mask, dormant_ratio, dormant_scores, srank
@@ -310,7 +310,7 @@ def test_diagnostics_cadence_changes_only_what_is_logged(name, tmp_path, monkeyp
     diagnostics = ("plasticity/weight_norm", "plasticity/dormant_ratio", "plasticity/grad_norm")
     got = {}
     for every in (1, 3):
-        monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := f"sqlite:///{tmp_path / f'every{every}.db'}")
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := new_store(tmp_path / f"every{every}.db"))
         run_id = run(compose_cfg([*config, f"plasticity.every_rollouts={every}"]), tmp_path / f"every{every}")
         client = MlflowClient(uri)
         got[every] = {k: [(m.step, m.value) for m in client.get_metric_history(run_id, k)] for k in kept + diagnostics}

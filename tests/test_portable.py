@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
+from conftest import new_store
 from sweep import portable
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,7 +111,7 @@ def test_numpy_imported_before_sweep_is_not_portable():
 
 def test_a_config_asking_for_the_other_mode_is_one_error_line_before_training(tmp_path):
     env = clean_env()
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     # a parent decided native (SWEEP_PORTABLE=0), the config (conf/config.yaml) asks for portable
     proc = subprocess.run([sys.executable, "-m", "sweep", "train.total_timesteps=512", f"hydra.run.dir={tmp_path / 'out'}"],
                           env={**env, portable.SWITCH: "0", "MLFLOW_TRACKING_URI": uri}, cwd=tmp_path,
@@ -200,7 +201,7 @@ def test_a_run_records_the_cpu_and_the_mode_as_tags(tmp_path, monkeypatch):
     from conftest import TINY, compose_cfg
 
     assert portable.active(), "conftest.py imports sweep first: the test process computes in portable mode"
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     monkeypatch.setenv("SWEEP_CHECKPOINT_DIR", str(tmp_path / "ckpt"))
     run_id = sweep.run.run(compose_cfg(TINY + ["env.backend=fast"]), tmp_path / "out")

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from conftest import ROOT
+from conftest import ROOT, new_store
 
 RECIPES = {"diagnostic": "### Add a diagnostic (one module, one YAML)", "remedy": "### Add a remedy (one module, one YAML)"}
 # the README's command, shortened to a tiny run (a budget, the store, quiet progress), never changed otherwise
@@ -92,7 +92,7 @@ def test_the_readme_recipe_is_one_module_and_one_yaml(tmp_path, name, often, met
     assert changed_files(tree) == set(files)   # the recipe's two files, nothing else
     assert job_keys(tree / "conf") == job_keys(ROOT / "conf")   # every shipped agent keeps its job
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     train, report = commands
     proc = run_in(tree, train, uri, *TINY, *often)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -101,7 +101,7 @@ def test_the_readme_recipe_is_one_module_and_one_yaml(tmp_path, name, often, met
     history = client.get_metric_history(run.info.run_id, metric)
     assert len(history) >= 2 and all(m.value > 0 for m in history), (metric, history)
 
-    proc = run_in(tree, report, uri, "--experiment", "recipe", "--out", str(tmp_path / "report"))
+    proc = run_in(tree, report, uri, "--experiment", "recipe", "--out", str(tmp_path / "report"), "--draft")
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "report" / f"{figure}_paper.png").exists(), proc.stdout
 

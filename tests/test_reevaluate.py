@@ -12,7 +12,7 @@ from scipy import stats
 from omegaconf import OmegaConf
 from mlflow.tracking import MlflowClient
 
-from conftest import TINY, compose_cfg
+from conftest import TINY, compose_cfg, new_store
 from sweep import metrics
 from sweep.archive import export, import_
 from sweep.reevaluate import main, parse_overrides, run_config, table
@@ -120,7 +120,7 @@ def test_a_run_archived_with_its_models_scores_the_same_after_import(store, tmp_
     # docs/remedies_study.md re-makes its still-air table from the archive: models exported, imported, flown.
     run_id = run(compose_cfg(["agent=ppo", "seed=5", "wind=none", *TINY]), tmp_path / "a")
     [path] = export(store, EXP, tmp_path / "archive", artifacts=("config.yaml", "model*"), where={"wind": "none"})
-    target = f"sqlite:///{tmp_path / 'b.db'}"
+    target = new_store(tmp_path / "b.db")
     assert import_([path], target) == (1, 0)
     for uri in (store, target):
         assert main(["--experiment", EXP, "--uri", uri, "--name", "still_air", "eval.wind_speed=0"]) == 0

@@ -35,7 +35,7 @@ import pytest
 from sweep.training.records import Condition
 
 sys.path.insert(0, str(Path(__file__).parent))
-from conftest import compose_cfg  # noqa: E402
+from conftest import compose_cfg, new_store  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "reference_histories.json"
 OTHER_CPU_RTOL = 1e-3
@@ -65,7 +65,7 @@ def history(name: str, tmp: Path) -> dict[str, list[list[float]]]:
 
     from sweep.run import run
 
-    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    uri = new_store(tmp / "mlflow.db")
     os.environ["MLFLOW_TRACKING_URI"] = uri
     os.environ["SWEEP_CHECKPOINT_DIR"] = str(tmp / "checkpoints")
     run_id = run(compose_cfg({**RUNS, **COMPILE_RUNS}[name]), tmp / name)
@@ -131,7 +131,8 @@ def test_history_equals_the_stored_reference(name, tmp_path):
                 assert value == pytest.approx(ref, rel=rtol, abs=1e-9, nan_ok=True), f"{name} {key} at {step}"
 
 
-@pytest.mark.parametrize("name", ["jax_rare_paths", *COMPILE_RUNS])
+# the ReLU LayerNorm run in the slow suite (its cached run is still checked against the reference above)
+@pytest.mark.parametrize("name", [pytest.param("jax_rare_paths", marks=pytest.mark.slow), *COMPILE_RUNS])
 def test_a_fresh_compile_logs_the_numbers_of_a_cached_one(name, tmp_path):
     """The first process on a new machine compiles numba's functions (the rollout, the env), the next ones load them
     from numba's cache: a LayerNorm run (ReLU; tanh, the study's) logs the same numbers either way. Before

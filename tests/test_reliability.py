@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from conftest import TINY, compose_cfg, run_cli
+from conftest import TINY, compose_cfg, new_store, run_cli
 from sweep.checkpoint import load_checkpoint
 from sweep.run import run
 
@@ -32,7 +32,9 @@ RECOM_RUN = ["agent=recom_l2", "seed=4", "agent.ppo.n_steps=512", "agent.ppo.n_e
              "wind.segment_steps=2048", "eval.episodes=2", "env.episode_seconds=1.0"]
 
 
-@pytest.mark.parametrize("learner,total", [("sb3", 6144), ("jax", 20480)])  # jax: faster, longer run
+# SB3's run (the reference) in the slow suite: the same process-level path, 4x slower per step; its checkpoint's
+# round trip is tested in-process (test_resume.py, test_reset_all.py, test_remedies.py). JAX: faster, a longer run.
+@pytest.mark.parametrize("learner,total", [pytest.param("sb3", 6144, marks=pytest.mark.slow), ("jax", 20480)])
 def test_kill_minus_9_then_same_command_finishes_the_same_run(tmp_path, checkpoint_dir, learner, total):
     kill_then_resume(tmp_path, checkpoint_dir, [*RECOM_RUN, f"agent.learner={learner}", f"train.total_timesteps={total}"],
                      total, loss="train/loss", step=512, kill_after=2048)
@@ -42,7 +44,7 @@ def kill_then_resume(tmp_path, checkpoint_dir, config: list[str], total: int, lo
                      kill_after: int) -> None:
     """Run ``config`` as a subprocess, SIGKILL it once a checkpoint at >= ``kill_after`` timesteps exists, run the same
     command again: one FINISHED MLflow run whose histories (log lines every ``step``) equal an uninterrupted run's."""
-    uri = f"sqlite:///{tmp_path / 'killed.db'}"
+    uri = new_store(tmp_path / "killed.db")
     args = [*config, f"hydra.run.dir={tmp_path / 'out'}"]
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
     proc = subprocess.Popen([sys.executable, "-m", "sweep", *args], cwd=tmp_path, env=env,
@@ -71,7 +73,7 @@ def kill_then_resume(tmp_path, checkpoint_dir, config: list[str], total: int, lo
     assert steps == list(range(step, total + 1, step))  # strictly increasing, none missing, none duplicated
 
     # The resumed run is the run that would have happened: same histories as an uninterrupted one.
-    ref_uri = f"sqlite:///{tmp_path / 'reference.db'}"
+    ref_uri = new_store(tmp_path / "reference.db")
     ref = run_cli([*config, f"hydra.run.dir={tmp_path / 'ref'}"], ref_uri, tmp_path)
     assert ref.returncode == 0, ref.stderr[-2000:]
     ref_client, (ref_run,) = runs_of(ref_uri)
@@ -90,7 +92,7 @@ def kill_then_resume(tmp_path, checkpoint_dir, config: list[str], total: int, lo
 def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch, learner):
     histories = []
     for attempt in range(2):
-        uri = f"sqlite:///{tmp_path / f'{attempt}.db'}"
+        uri = new_store(tmp_path / f"{attempt}.db")
         monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
         run_id = run(compose_cfg(["agent=l2", "seed=11", f"agent.learner={learner}", "train.total_timesteps=1536", "agent.ppo.n_steps=512",
                                   "eval.episodes=2", "env.episode_seconds=1.0"]), tmp_path / f"job{attempt}")
@@ -99,9 +101,11 @@ def test_same_config_and_seed_twice_is_identical(tmp_path, monkeypatch, learner)
     assert histories[0] == histories[1] and len(histories[0]["train/loss"]) == 2
 
 
-@pytest.mark.parametrize("kind,reason", [("raise", "RuntimeError: injected failure"), ("'nan'", "NonFiniteError")])
+# the NaN guard's own test is in-process on both learners (test_run_options.py); in a multirun, the slow suite
+@pytest.mark.parametrize("kind,reason", [("raise", "RuntimeError: injected failure"),
+                                         pytest.param("'nan'", "NonFiniteError", marks=pytest.mark.slow)])
 def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
-    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    uri = new_store(tmp_path / "x.db")
     env_path = os.environ.get("PYTHONPATH", "")
     os.environ["PYTHONPATH"] = f"{TESTS}{os.pathsep}{env_path}"
     try:
@@ -124,7 +128,7 @@ def test_failing_job_in_multirun(tmp_path, checkpoint_dir, kind, reason):
 
 
 def test_four_concurrent_jobs_on_a_fresh_store(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'fresh.db'}"
+    uri = f"sqlite:///{tmp_path / 'fresh.db'}"  # the store's first creation, not new_store's copy
     proc = run_cli(["-m", "agent=ppo,l2", "seed=0,1", *TINY, "eval.episodes=1", "env.episode_seconds=1.0",
                     f"hydra.sweep.dir={tmp_path / 'sweep'}", "hydra.launcher.n_jobs=4"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -136,7 +140,7 @@ def test_four_concurrent_jobs_on_a_fresh_store(tmp_path):
 
 
 def test_submitit_local_launcher(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    uri = new_store(tmp_path / "x.db")
     proc = run_cli(["-m", "hydra/launcher=submitit_local", "hydra.launcher.cpus_per_task=1", "seed=0,1", *TINY,
                     "train.total_timesteps=512", "eval.episodes=1", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]

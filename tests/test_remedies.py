@@ -10,7 +10,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 from stable_baselines3.common.utils import configure_logger
 
-from conftest import compose_cfg
+from conftest import compose_cfg, new_store
 from sweep.training.hooks import remedy_hooks
 from sweep.agents.networks import fresh_parameters
 from sweep.agents.schedules import LRSchedule
@@ -237,12 +237,12 @@ def test_resume_between_two_resets_is_the_uninterrupted_run(tmp_path, monkeypatc
         client = MlflowClient(uri)
         return {k: [(m.step, m.value) for m in client.get_metric_history(run_id, k)] for k in keys}
 
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", ref_uri := f"sqlite:///{tmp_path / 'ref.db'}")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", ref_uri := new_store(tmp_path / "ref.db"))
     reference = histories(ref_uri, run(compose_cfg(config), tmp_path / "ref"))
     assert len(reference["remedy/redo/reset_units"]) == 3 and len(reference["remedy/shrink_perturb/weight_norm_after"]) == 2
     assert reference["eval_best/source_step"] and reference["plasticity/probe_loss"]   # the resumed run must keep the best
 
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := f"sqlite:///{tmp_path / 'cut.db'}")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri := new_store(tmp_path / "cut.db"))
     fault = ["+agent.fault._target_=faults.Fault", "+agent.fault.seed=3", "+agent.fault.at_step=1280"]
     with pytest.raises(RuntimeError, match="injected failure"):
         run(compose_cfg([*config, *fault]), tmp_path / "cut")

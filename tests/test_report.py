@@ -23,6 +23,7 @@ from mlflow.tracking import MlflowClient
 from scipy.stats import t as t_dist
 from scipy.stats import trim_mean
 
+from conftest import new_store
 from sweep.report import conditions, figures, load, stats, style, tables
 from sweep.report.__main__ import main
 
@@ -64,7 +65,7 @@ def run_report(store: str, out: Path, *args: str, draft: bool = True) -> tuple[i
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> str:
     tmp = tmp_path_factory.mktemp("store")
-    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    uri = new_store(tmp / "mlflow.db")
     # module-scoped: built before the autouse fixtures that keep a test's checkpoints and files in its temp dir
     env = {**env_with(uri), "SWEEP_CHECKPOINT_DIR": str(tmp / "checkpoints")}
     proc = subprocess.run([sys.executable, "-m", "sweep", *SWEEP, f"hydra.sweep.dir={tmp / 'sweep'}"], cwd=tmp,
@@ -691,7 +692,7 @@ def by_hand(agent: str, prefix: str, key: str, scale: float = 1.0) -> tuple[floa
 def policy_report(tmp_path_factory):
     """(output dir, stdout) of the report of POLICY_RUNS."""
     tmp = tmp_path_factory.mktemp("policies")
-    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    uri = new_store(tmp / "mlflow.db")
     log_policy_runs(MlflowClient(uri), "policies")
     code, stdout, stderr = run_report(uri, tmp / "out", "--experiment", "policies")
     assert code == 0, stdout + stderr
@@ -790,7 +791,7 @@ def test_a_store_of_best_policies_only_still_builds_every_file(tmp_path, monkeyp
     """eval.policy=best everywhere: no final policy's evaluation at the end (only the ones during training). Every
     figure and table is written, the flight figures from the best policy's flights and saying so, the final
     columns '–'."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_many_agents(MlflowClient(uri), "best", seeds=1, flights=tmp_path / "flights", policy="best")
     titles, save = {}, figures.save
 
@@ -884,7 +885,7 @@ def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, mo
     primary measure, in its order, each with one look in all figures; the other nine are thin grey lines, named in
     the note; --highlight adds an agent; --top 12 colours all twelve with twelve distinct colours. Every table
     still names all twelve by the label their runs logged, and the legends fit the column."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_many_agents(MlflowClient(uri), "many")
     drawn = spy_legends(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "many", draft=False)
@@ -930,7 +931,7 @@ def test_many_agents_show_the_top_three_in_colour_and_the_rest_grey(tmp_path, mo
 def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatch):
     """Every reading a run logged gets a panel named for it, with each agent's seed mean of that reading; a reading
     no run of an agent logged has no curve of it; thresholds in labels and note are the ones the runs logged."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_reading_runs(MlflowClient(uri), "readings")
     drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings", draft=False)
@@ -959,7 +960,7 @@ def test_dormant_figure_draws_each_reading_in_a_named_panel(tmp_path, monkeypatc
 
 def test_summary_has_the_final_dead_tanh_and_signed_mean_shares(tmp_path):
     """Final = mean over the last 10% of timesteps, then over seeds; '–' for an agent whose runs lack the key."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_reading_runs(MlflowClient(uri), "readings")
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "readings")
     assert code == 0, stdout + stderr
@@ -985,7 +986,7 @@ def test_summary_has_the_final_dead_tanh_and_signed_mean_shares(tmp_path):
 def test_a_store_without_the_new_readings_still_builds_every_file(tmp_path, monkeypatch):
     """Runs logged before the readings existed (every other curve, flights): every figure and table is written,
     the dormant figure has Sokar's ratio and the saturated share, the new summary columns say '–'."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_many_agents(MlflowClient(uri), "old", seeds=1, flights=tmp_path / "flights")
     drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "old")
@@ -1044,8 +1045,7 @@ def test_by_and_baseline_mistakes_are_one_error_line_and_exit_1(store, tmp_path,
 
 
 def test_empty_store_is_one_error_line_and_exit_1(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'empty.db'}"
-    MlflowClient(uri).search_experiments()  # creates the schema: a store without runs
+    uri = new_store(tmp_path / "empty.db")   # a store without runs
     proc = subprocess.run([sys.executable, "-m", "sweep.report", "--out", str(tmp_path / "out")], cwd=tmp_path,
                           env=env_with(uri), capture_output=True, text=True, timeout=300)
     assert proc.returncode == 1
@@ -1067,7 +1067,7 @@ def test_probe_table_and_figure_from_hand_built_probe_losses(tmp_path):
     over seeds per agent; the probe figure is drawn; a store without probes writes neither (HAND)."""
     from scipy import stats as sst
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     exp_id = client.create_experiment("probe")
     losses = {("ppo", 0): [0.010, 0.020, 0.040], ("ppo", 1): [0.012, 0.018, 0.050], ("l2", 0): [0.010, 0.011, 0.012]}
@@ -1096,7 +1096,7 @@ def test_reward_at_steps_gives_the_iqm_and_its_difference_to_the_baseline(tmp_pa
     """--at: per run the last reward logged at or before each step; HAND at step 550 (logged at 500): PPO seeds
     -50 and -57.5 (IQM of two = their mean), RECOM -50 x 3; Δ = 3.75 with a bootstrap CI of exactly [0, 7.5]
     (PPO's resamples are {-50,-50}, mixed, {-57.5,-57.5}); without --at no such file."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_hand_runs(MlflowClient(uri))
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", HAND, "--by", "agent.l2.coef",
                                       "--baseline", "agent=ppo", "--at", "550,1000")
@@ -1118,7 +1118,7 @@ LATE = {("ppo", 0): [0.6, 0.6, 0.0, 0.0, 0.0], ("ppo", 1): [0.0] * 5, ("l2", 0):
 def log_late_evaluations(tmp_path, late: dict) -> str:
     """Experiment 'lb': per (agent, seed) evaluations every 100 steps to 1000, the last five (steps > 500, the
     'late' ones) given; the first five at 0.1 x seed. Runs of 1 and 2 minutes. Returns the store's URI."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     exp_id = client.create_experiment("lb")
     for (agent, seed), values in late.items():
@@ -1190,7 +1190,7 @@ def test_versus_table_compares_every_agent_with_each_reference(tmp_path):
 
 def test_agents_option_keeps_only_those_agents_and_names_unknown_ones(tmp_path):
     """--agents l2: every table holds L2 only; --agents l2,nope: one error line naming what the experiment has."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     exp_id = client.create_experiment("pick")
     for agent, seed in [("ppo", 0), ("ppo", 1), ("l2", 0), ("l2", 1)]:
@@ -1229,7 +1229,7 @@ def test_runs_of_two_learners_are_two_conditions(tmp_path):
     """PPO on SB3 (one run from before the learner tag: SB3) and on JAX, two seeds each, and L2 on SB3: the
     duplicate filter keeps every learner's run (only the older SB3 run of seed 0 goes), and the report splits the
     learners as --by agent.learner would, saying so."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     log_cells(client, "learners", [("ppo", 0, "sb3", "FINISHED", -500.0), ("ppo", 0, None, "FINISHED", -100.0),
                                    ("ppo", 1, "sb3", "FINISHED", -120.0), ("ppo", 0, "jax", "FINISHED", -300.0),
@@ -1259,7 +1259,7 @@ def test_missing_lines_name_only_what_a_sweep_asked_for(tmp_path):
     """Missing lines name a cell whose run failed without a finished run of the same agent/wind/seed/learner, and
     a multirun job that ended INVALID before its run existed; not a failed run that was run again, not a job of
     another experiment, and not the paper's agents or winds nobody ran."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     sweep = tmp_path / "multirun"
     ids = log_cells(client, "asked", [("ppo", 0, "sb3", "FINISHED", -100.0), ("ppo", 1, "sb3", "FAILED", -900.0),
@@ -1340,7 +1340,7 @@ def test_twelve_agents_in_two_layouts_give_small_multiples_ranked_intervals_and_
     by its own ranking (layout 1: agent 11 on top; layout 16: agent 0). The curves colour the top three of each
     panel (agents 9-11 and 0-2), PPO (agent 0) and the --highlight agent (layer_norm), each in its own colour
     (style.AGENT_COLOURS) in both panels, the legend in ranking order; the other five are grey in both panels."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_arms(MlflowClient(uri), "arms")
     drawn = spy_panels(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "arms", "--by", "env.n_envs",
@@ -1541,7 +1541,7 @@ def test_segment_scores_against_reset_all_on_hand_built_evaluations(tmp_path, mo
     """Segments of 400 steps, four evaluations each. reset_all learns every segment alike: AUC 62.5%, end 100%. PPO
     matches it on segment 0 (Δ 0), transfers forward on segment 1 (AUC 100%, Δ +37.5 points) and fails on segment 2
     (AUC 12.5%, end 50%: Δ −50 points). Both seeds alike, so every interval has zero width."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "seg", [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()])
     drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
@@ -1597,7 +1597,7 @@ def test_a_final_evaluation_past_the_run_under_the_next_condition_is_left_out():
 
 def test_a_draft_report_writes_its_figures_as_png_only_at_100_dpi(tmp_path):
     """--draft: the same figures, PNG only, a third of the paper's resolution (a one-column figure ~3.5 in wide)."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "draft", [(a, segs, probe, "current") for a, (segs, probe) in
                                                   RELEARN_EVALS.items()])
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "draft")
@@ -1611,7 +1611,7 @@ def test_segment_scores_draw_each_change_as_a_column_of_one_figure(tmp_path, mon
     """Two changes in one experiment (a wind flip, a payload in still air): one segment_scores figure two columns
     wide, each change's numbers in the table under its own arm."""
     monkeypatch.delenv("SOURCE_DATE_EPOCH", raising=False)   # matplotlib would stamp that date alike in both
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     runs = [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()]
     log_segment_runs(client, "two", runs)
@@ -1659,7 +1659,7 @@ def test_relearning_table_and_reading_correlation_on_hand_built_evaluations(tmp_
     row for it."""
     from scipy.stats import spearmanr
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     dormant = {"l2": [0.1, 0.9, 0.1, 0.9], "ppo": [0.2, 0.0, 0.6, 0.0], "reset_all": [0.0] * 4}
     log_segment_runs(MlflowClient(uri), "relearn", [(agent, segs, probe, "current")
                                                     for agent, (segs, probe) in RELEARN_EVALS.items()]
@@ -1760,7 +1760,7 @@ def test_relearning_of_the_seeds_that_learned_the_first_segment(tmp_path, monkey
     ppo = {0: RELEARN_EVALS["ppo"][0], 1: never}
     fresh = RELEARN_EVALS["reset_all"][0]
     reset_all = {0: fresh, 1: [never[0], *fresh[1:]]}   # seed 1's first network never hovers, its later ones do
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "bimodal", [(agent, segs, probe, "current") for agent, (segs, probe) in
                                                     {**RELEARN_EVALS, "ppo": (ppo, RELEARN_EVALS["ppo"][1]),
                                                      "reset_all": (reset_all, RELEARN_EVALS["reset_all"][1])}.items()])
@@ -1818,7 +1818,7 @@ def test_transfer_gap_table_on_hand_built_flights(tmp_path, capsys):
     alike: zero width); mx3 runs under mx3: 90%, 90%. Position MSE summed over the axes. A missing arm is one line."""
     from sweep.report import transfer
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     exp_id = client.create_experiment("transfer")
     flown = {("x3", 0): {"x3": 1.0, "mx3": 0.2}, ("x3", 1): {"x3": 0.8, "mx3": 0.0},
@@ -1947,7 +1947,7 @@ def test_segment_scores_difference_row_shows_every_column(tmp_path, monkeypatch)
         return save(fig, out, stem)
 
     monkeypatch.setattr(figures, "save", spy)
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     client = MlflowClient(uri)
     log_segment_runs(client, "two", [(agent, segs, [], "current") for agent, segs in SEGMENT_EVALS.items()])
     far = {"reset_all": [[0.0] * 4] * 3, "ppo": [[1.0] * 4] * 3}

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from mlflow.tracking import MlflowClient
 
-from conftest import compose_cfg
+from conftest import compose_cfg, new_store
 from sweep.checkpoint import load_checkpoint
 from sweep.monitor import EnvMonitor
 from sweep.run import run, run_job
@@ -62,7 +62,7 @@ def cut_at(step: int):
 def reference(tmp_path_factory):
     """Metric histories of the same run, uninterrupted, in its own store and checkpoint root."""
     tmp = tmp_path_factory.mktemp("reference")
-    uri = f"sqlite:///{tmp / 'ref.db'}"
+    uri = new_store(tmp / "ref.db")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("MLFLOW_TRACKING_URI", uri)
         mp.setenv("SWEEP_CHECKPOINT_DIR", str(tmp / "checkpoints"))

@@ -11,7 +11,7 @@ import torch
 from mlflow.tracking import MlflowClient
 from stable_baselines3 import PPO
 
-from conftest import TINY, compose_cfg
+from conftest import TINY, compose_cfg, new_store
 from sweep.checkpoint import load_checkpoint
 import sweep.run as run_module
 from sweep.run import run, run_job
@@ -96,7 +96,7 @@ def test_a_sweep_that_lists_one_job_twice_runs_it_once(tmp_path):
     one MLflow run, both jobs FINISHED with its id, no checkpoint written by two processes."""
     from conftest import run_cli
 
-    uri = f"sqlite:///{tmp_path / 'x.db'}"
+    uri = new_store(tmp_path / "x.db")
     proc = run_cli(["-m", "agent=ppo", "++agent.recom.interval=512,1024", *TINY, "hydra.launcher.n_jobs=2",
                     f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -181,9 +181,10 @@ def test_sqlite_default_holds_concurrent_writers(tmp_path, writers):
     """N processes logging metrics into one SQLite store at once: every batch lands (no 'database is locked')."""
     from mlflow.tracking import MlflowClient
 
+    from conftest import new_store
     from sweep.tracking import ensure_store
 
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     exp_id = ensure_store(uri, "concurrency")
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
@@ -222,10 +223,10 @@ def chromium() -> str:
 def test_printed_link_opens_the_runs_table_in_a_real_browser(tmp_path):
     """A small sweep prints the runs-table link; a real ``mlflow ui`` serves it; headless Chromium's DOM holds every
     run name."""
-    from conftest import TINY, run_cli
+    from conftest import TINY, new_store, run_cli
 
     browser = chromium()
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     sweep = run_cli(["-m", "agent=ppo,l2", "seed=0,1", *TINY, "train.total_timesteps=512", "eval.episodes=1",
                      "tracking.experiment=ui-test", f"hydra.sweep.dir={tmp_path / 'sweep'}"], uri, tmp_path)
     assert sweep.returncode == 0, sweep.stderr[-2000:]

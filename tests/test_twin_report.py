@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 from mlflow.tracking import MlflowClient
 
+from conftest import new_store
 from sweep.report import stats
 from test_report import SEGMENT_EVALS, log_segment_runs, md_table, run_report, spy_figures
 
@@ -35,7 +36,7 @@ def test_each_agent_against_its_own_fresh_twin_on_hand_built_evaluations(tmp_pat
     -37.5 pp per segment, -50 pp on the re-learning AUC, P(> own twin) 0; PPO's twin is reset_all (Δ -6.25 pp);
     ReDo's twin differs from it in segment 0 on seed 1 (1 of 2 pairs the same run), and that twin run, stuck in
     segment 0, hovers later."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "twins", [(a, segs, [], "current") for a, segs in TWIN_EVALS.items()])
     drawn = spy_figures(monkeypatch)
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "twins")
@@ -74,7 +75,7 @@ def test_each_agent_against_its_own_fresh_twin_on_hand_built_evaluations(tmp_pat
 
 def test_a_twin_without_evaluations_leaves_its_cells_empty(tmp_path):
     """layer_norm_fresh ran without in-training evaluations: no pairs for LayerNorm ("–"), PPO's still there."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "twins", [(a, TWIN_EVALS[a], [], "current") for a in ("ppo", "reset_all",
                                                                                                "layer_norm")]
                      + [("layer_norm_fresh", [[], [], []], [], "current")])
@@ -86,7 +87,7 @@ def test_a_twin_without_evaluations_leaves_its_cells_empty(tmp_path):
 
 
 def test_no_twins_no_twin_files(tmp_path):
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     log_segment_runs(MlflowClient(uri), "seg", [("layer_norm", TWIN_EVALS["layer_norm"], [], "current"),
                                                 ("reset_all", TWIN_EVALS["reset_all"], [], "current")])
     code, stdout, stderr = run_report(uri, tmp_path / "out", "--experiment", "seg")
@@ -130,7 +131,7 @@ def test_the_re_learning_distance_against_its_own_twin_on_hand_built_evaluations
     where its twin flies 0.2/0.2 and 0.2/0.4 m (by seed): Δ +0.35 m [0.3, 0.4], P(nearer than own twin) 0; PPO
     1.1 m against reset_all's 0.45 (+0.65); ReDo's twin flew segment 0 with the same success but not the same
     distances on seed 1, so 1 of 2 pairs is the same run."""
-    uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
+    uri = new_store(tmp_path / "mlflow.db")
     evals = {**TWIN_EVALS, "redo_fresh": [SAME_0, [1.0] * 4, [1.0] * 4]}
     log_segment_runs(MlflowClient(uri), "twins", [(a, evals[a], [], "current") for a in TWIN_DISTANCES],
                      distances=TWIN_DISTANCES)
