@@ -7,7 +7,7 @@
 #   docs/offpolicy_plasticity/run.sh transfer      # the continual pilot runs' final policies flown under other conditions
 #   docs/offpolicy_plasticity/run.sh report        # the report, fresh networks' learning times -> .../pilot
 #   docs/offpolicy_plasticity/run.sh study         # seeds 0-15 x flip, payload x AGENTS x {continual, twin} (192 runs),
-#                                                  #   2 seeds at a time, each block exported when it ends
+#                                                  #   2 seeds at a time, each sweep exported when it ends
 #   docs/offpolicy_plasticity/run.sh study-report  # the study's report -> .../study
 #   docs/offpolicy_plasticity/run.sh stop          # stop a running phase (a re-run resumes: FINISHED jobs are skipped)
 #   docs/offpolicy_plasticity/run.sh export        # FINISHED runs -> docs/offpolicy_plasticity/runs (commit them)
@@ -57,14 +57,15 @@ case ${1:-} in
              set -- $change
              sweep $STUDY_COMMIT "pilot-agents-$1" "${@:2}" seed=100,101 agent=td3_reset,td3_layer_norm
            done ;;
-  study)   set -f   # 2 seeds at a time, both changes, every agent and its twin; exported as each block ends
+  study)   set -f   # 2 seeds at a time, both changes, every agent and its twin; exported as each sweep (~40 min) ends
            for seeds in 0,1 2,3 4,5 6,7 8,9 10,11 12,13 14,15; do
              for change in "flip wind=flip" "payload wind=none vehicle=payload"; do
                set -- $change
                sweep $STUDY_COMMIT "study-$1" "${@:2}" "seed=$seeds" "agent=$AGENTS"
+               "$0" export
                sweep $STUDY_COMMIT "study-$1-fresh" "${@:2}" "seed=$seeds" "agent=$AGENTS" twin=fresh
+               "$0" export
              done
-             "$0" export
            done ;;
   transfer)  set -f   # eval.direction=[1,0,0] is a glob pattern to the shell
              for spec in "still eval.wind_speed=0" "plus3 eval.wind_speed=3 eval.direction=[1,0,0]" \
