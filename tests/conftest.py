@@ -4,6 +4,7 @@ from __future__ import annotations
 import sweep  # noqa: F401  (first: the test process's float mode, train.portable, before NumPy is imported)
 
 import atexit
+import functools
 import os
 import shutil
 import subprocess
@@ -75,21 +76,22 @@ def sb3_logdir(tmp_path, monkeypatch) -> Path:
     return path
 
 
-_EMPTY_STORE: list[Path] = []
+@functools.cache
+def _empty_store() -> Path:
+    """An empty store that MLflow itself made (created and migrated), once per test process."""
+    from mlflow.tracking import MlflowClient
+
+    folder = Path(tempfile.mkdtemp(prefix="sweep-empty-store-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    MlflowClient(f"sqlite:///{folder / 'mlflow.db'}").search_experiments()
+    return folder / "mlflow.db"
 
 
 def new_store(path: Path) -> str:
-    """The URI of an empty MLflow store at ``path``: a copy of one that MLflow itself made, once per test process.
-    A new SQLite store runs MLflow's schema migrations (~1.3 s, measured 12-08: a quarter of test_tracking.py's time);
-    the copy is the same file. The tests of a store's first creation (concurrent jobs on a fresh store) don't use it."""
-    if not _EMPTY_STORE:
-        from mlflow.tracking import MlflowClient
-
-        folder = Path(tempfile.mkdtemp(prefix="sweep-empty-store-"))
-        atexit.register(shutil.rmtree, folder, ignore_errors=True)
-        MlflowClient(f"sqlite:///{folder / 'mlflow.db'}").search_experiments()   # creates and migrates it
-        _EMPTY_STORE.append(folder / "mlflow.db")
-    shutil.copyfile(_EMPTY_STORE[0], path)
+    """The URI of an empty MLflow store at ``path``: a copy of ``_empty_store()``. A new SQLite store runs MLflow's
+    schema migrations (~1.3 s, measured 12-08: a quarter of test_tracking.py's time); the copy is the same file. The
+    tests of a store's first creation (concurrent jobs on a fresh store) don't use it."""
+    shutil.copyfile(_empty_store(), path)
     return f"sqlite:///{path}"
 
 
